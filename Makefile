@@ -1,0 +1,26 @@
+# Entry points of the README. Each target runs the project's setup script first (idempotent).
+BUILD ?= build
+JOBS ?= $(shell nproc)
+
+.PHONY: setup configure build demo test bench clean
+
+setup:
+	bash scripts/setup.sh
+
+configure: setup
+	cmake -S . -B $(BUILD) -G Ninja -DCMAKE_BUILD_TYPE=Release
+
+build: configure
+	cmake --build $(BUILD) -j $(JOBS)
+
+demo: build
+	MESA_SHADER_CACHE_DIR=$(CURDIR)/$(BUILD)/mesa-cache $(BUILD)/haze render scenes/demo.json --out out/demo
+
+test: build
+	cd $(BUILD) && ctest --output-on-failure -j $(JOBS)
+
+bench: build
+	MESA_SHADER_CACHE_DIR=$(CURDIR)/$(BUILD)/mesa-cache $(BUILD)/haze bench
+
+clean:
+	rm -rf $(BUILD) out

@@ -1,0 +1,19 @@
+// `haze bench`: throughput figures and each pass's time as a ratio to a copy kernel over the same
+// amount of data, measured in one run on one device.
+#pragma once
+
+#include <string>
+
+#include "gpu/gpu.hpp"
+
+namespace haze::bench {
+
+struct Options {
+  bool json = false;
+  std::string size = "320x180";
+  int spp = 8;
+};
+
+int run(const Options& o, const gpu::ContextOptions& co);
+
+}  // namespace haze::bench

@@ -1,0 +1,39 @@
+# GLSL -> SPIR-V at build time, one .spv per feature variant.
+#   haze_shader(SOURCE volume/trace.comp FEATURES HETERO EMISSION ...)
+# compiles every subset of FEATURES as defines HAZE_<F>=1; the variant's file name carries a bit mask
+# in FEATURES order (trace.comp.5.spv = features 0 and 2). Includes are tracked with --depfile.
+set(HAZE_SPV_DIR ${CMAKE_BINARY_DIR}/spv)
+set_property(GLOBAL PROPERTY HAZE_SPV_FILES "")
+
+function(haze_shader)
+  cmake_parse_arguments(S "" "SOURCE" "FEATURES" ${ARGN})
+  list(LENGTH S_FEATURES n)
+  math(EXPR count "1 << ${n}")
+  math(EXPR last "${count} - 1")
+  get_filename_component(dir ${S_SOURCE} DIRECTORY)
+  get_filename_component(name ${S_SOURCE} NAME)
+  set(src ${CMAKE_SOURCE_DIR}/shaders/${S_SOURCE})
+  foreach(mask RANGE 0 ${last})
+    set(defines "")
+    set(i 0)
+    foreach(f IN LISTS S_FEATURES)
+      math(EXPR bit "(${mask} >> ${i}) & 1")
+      if(bit)
+        list(APPEND defines "-DHAZE_${f}=1")
+      endif()
+      math(EXPR i "${i} + 1")
+    endforeach()
+    set(out ${HAZE_SPV_DIR}/${dir}/${name}.${mask}.spv)
+    add_custom_command(
+      OUTPUT ${out}
+      COMMAND ${CMAKE_COMMAND} -E make_directory ${HAZE_SPV_DIR}/${dir}
+      COMMAND ${GLSLANG_VALIDATOR} -V --target-env vulkan1.3 -g0 -Os
+              -I${CMAKE_SOURCE_DIR}/shaders -I/usr/include ${defines}
+              --depfile ${out}.d -o ${out} ${src}
+      DEPENDS ${src}
+      DEPFILE ${out}.d
+      COMMENT "GLSL ${S_SOURCE} [${mask}]"
+      VERBATIM)
+    set_property(GLOBAL APPEND PROPERTY HAZE_SPV_FILES ${out})
+  endforeach()
+endfunction()

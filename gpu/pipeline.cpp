@@ -1,0 +1,286 @@
+#include "gpu/pipeline.hpp"
+
+#include <fmt/format.h>
+
+#include <cerrno>
+#include <chrono>
+#include <cstring>
+#include <fstream>
+#include <map>
+#include <utility>
+
+#include "gpu/buffer.hpp"
+#include "gpu/context.hpp"
+#include "gpu/error.hpp"
+#include "gpu/vk_struct.hpp"
+
+namespace haze::gpu {
+namespace {
+
+constexpr uint32_t kSpirvMagic = 0x07230203;
+constexpr uint32_t kMaxPushBytes = 128;
+constexpr uint32_t kMaxPushDescriptors = 32;  // the guaranteed minimum of maxPushDescriptors
+
+// What the pipeline needs to know from the module, read straight from the SPIR-V words.
+struct Reflection {
+  std::array<uint32_t, 3> local_size{0, 0, 0};
+  std::vector<std::pair<uint32_t, uint32_t>> bindings;  // (set, binding)
+  bool push_constants = false;
+};
+
+Reflection reflect(const std::vector<uint32_t>& words, const std::vector<uint32_t>& spec) {
+  enum : uint32_t {
+    kOpExecutionMode = 16,
+    kOpExecutionModeId = 331,
+    kOpConstant = 43,
+    kOpConstantComposite = 44,
+    kOpSpecConstant = 50,
+    kOpSpecConstantComposite = 51,
+    kOpVariable = 59,
+    kOpDecorate = 71,
+    kModeLocalSize = 17,
+    kModeLocalSizeId = 38,
+    kDecSpecId = 1,
+    kDecBuiltIn = 11,
+    kDecBinding = 33,
+    kDecSet = 34,
+    kBuiltInWorkgroupSize = 25,
+    kStoragePushConstant = 9,
+  };
+  Reflection r;
+  std::map<uint32_t, uint32_t> value, spec_id, set, binding;
+  std::map<uint32_t, std::vector<uint32_t>> composite;
+  uint32_t wg_size_id = 0;
+  std::vector<uint32_t> local_ids;  // LocalSizeId operands (SPIR-V >= 1.2)
+  for (size_t i = 5; i < words.size();) {
+    uint32_t op = words[i] & 0xffff, n = words[i] >> 16;
+    if (n == 0 || i + n > words.size()) break;
+    const uint32_t* w = &words[i];
+    if (op == kOpExecutionMode && n >= 6 && w[2] == kModeLocalSize) {
+      r.local_size = {w[3], w[4], w[5]};
+    } else if (op == kOpExecutionModeId && n >= 6 && w[2] == kModeLocalSizeId) {
+      local_ids.assign(w + 3, w + 6);
+    } else if ((op == kOpConstant || op == kOpSpecConstant) && n >= 4) {
+      value[w[2]] = w[3];
+    } else if ((op == kOpConstantComposite || op == kOpSpecConstantComposite) && n >= 3) {
+      composite[w[2]].assign(w + 3, w + n);
+    } else if (op == kOpVariable && n >= 4 && w[3] == kStoragePushConstant) {
+      r.push_constants = true;
+    } else if (op == kOpDecorate && n >= 4) {
+      if (w[2] == kDecSpecId) spec_id[w[1]] = w[3];
+      if (w[2] == kDecBinding) binding[w[1]] = w[3];
+      if (w[2] == kDecSet) set[w[1]] = w[3];
+      if (w[2] == kDecBuiltIn && w[3] == kBuiltInWorkgroupSize) wg_size_id = w[1];
+    }
+    i += n;
+  }
+  for (const auto& [id, b] : binding) r.bindings.emplace_back(set.count(id) ? set[id] : 0, b);
+  // The value of a (possibly specialized) constant id.
+  const auto resolve = [&](uint32_t id) -> uint32_t {
+    auto s = spec_id.find(id);
+    if (s != spec_id.end() && s->second < spec.size()) return spec[s->second];
+    auto v = value.find(id);
+    return v != value.end() ? v->second : 0;
+  };
+  if (local_ids.size() == 3)
+    for (int k = 0; k < 3; ++k) r.local_size[k] = resolve(local_ids[k]);
+  // A WorkgroupSize built-in overrides both execution modes.
+  if (wg_size_id && composite.count(wg_size_id) && composite[wg_size_id].size() == 3)
+    for (int k = 0; k < 3; ++k) r.local_size[k] = resolve(composite[wg_size_id][k]);
+  return r;
+}
+
+}  // namespace
+
+std::vector<uint32_t> read_spirv(const std::string& path) {
+  std::ifstream in(path, std::ios::binary | std::ios::ate);
+  if (!in) throw Error(fmt::format("cannot open SPIR-V file '{}': {}", path, std::strerror(errno)));
+  auto size = static_cast<uint64_t>(in.tellg());
+  if (size < 20 || size % 4 != 0)
+    throw Error(fmt::format(
+        "'{}' is not a SPIR-V module ({} bytes, expected a multiple of 4 and at least 20)", path, size));
+  std::vector<uint32_t> words(size / 4);
+  in.seekg(0);
+  if (!in.read(reinterpret_cast<char*>(words.data()), static_cast<std::streamsize>(size)))
+    throw Error(fmt::format("cannot read SPIR-V file '{}'", path));
+  if (words[0] != kSpirvMagic)
+    throw Error(fmt::format("'{}' is not a SPIR-V module (magic number {:#010x}, expected {:#010x})", path,
+                            words[0], kSpirvMagic));
+  return words;
+}
+
+void compute_barrier(VkCommandBuffer cmd) {
+  auto b = vk_struct<VkMemoryBarrier>(VK_STRUCTURE_TYPE_MEMORY_BARRIER);
+  b.srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT | VK_ACCESS_TRANSFER_WRITE_BIT;
+  b.dstAccessMask = VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT | VK_ACCESS_TRANSFER_READ_BIT |
+                    VK_ACCESS_TRANSFER_WRITE_BIT;
+  constexpr VkPipelineStageFlags stages =
+      VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_TRANSFER_BIT;
+  vkCmdPipelineBarrier(cmd, stages, stages, 0, 1, &b, 0, nullptr, 0, nullptr);
+}
+
+std::string variant_spv(const std::string& spv_dir, const std::string& source, uint32_t mask) {
+  return fmt::format("{}/{}.{}.spv", spv_dir, source, mask);
+}
+
+ComputePipeline::ComputePipeline(Context& ctx, const std::string& spv_path, uint32_t num_buffers,
+                                 uint32_t push_bytes, const std::vector<uint32_t>& spec_constants)
+    : ctx_(&ctx), path_(spv_path), num_buffers_(num_buffers), push_bytes_(push_bytes) {
+  uint32_t max_push = std::min(kMaxPushBytes, ctx.limits().maxPushConstantsSize);
+  if (push_bytes % 4 != 0 || push_bytes > max_push)
+    throw Error(fmt::format("pipeline '{}': push constants of {} bytes (must be a multiple of 4, at most {})",
+                            path_, push_bytes, max_push));
+  if (num_buffers > kMaxPushDescriptors)
+    throw Error(fmt::format("pipeline '{}': {} buffers, at most {} can be pushed", path_, num_buffers,
+                            kMaxPushDescriptors));
+  auto words = read_spirv(spv_path);
+  Reflection refl = reflect(words, spec_constants);
+  for (auto [set, binding] : refl.bindings)
+    if (set != 0 || binding >= num_buffers)
+      throw Error(fmt::format(
+          "pipeline '{}': the shader uses set {} binding {}, but the pipeline declares {} buffers "
+          "in set 0",
+          path_, set, binding, num_buffers));
+  if (refl.push_constants && push_bytes == 0)
+    throw Error(fmt::format("pipeline '{}': the shader has push constants but push_bytes is 0", path_));
+  local_size_ = refl.local_size;
+
+  VkDevice dev = ctx.device();
+  VkShaderModule module = VK_NULL_HANDLE;
+  try {
+    std::vector<VkDescriptorSetLayoutBinding> bindings(num_buffers);
+    for (uint32_t i = 0; i < num_buffers; ++i)
+      bindings[i] = {i, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1, VK_SHADER_STAGE_COMPUTE_BIT, nullptr};
+    auto sinfo =
+        vk_struct<VkDescriptorSetLayoutCreateInfo>(VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO);
+    sinfo.flags = VK_DESCRIPTOR_SET_LAYOUT_CREATE_PUSH_DESCRIPTOR_BIT_KHR;
+    sinfo.bindingCount = num_buffers;
+    sinfo.pBindings = bindings.data();
+    HAZE_VK(vkCreateDescriptorSetLayout(dev, &sinfo, nullptr, &set_layout_));
+
+    VkPushConstantRange range{VK_SHADER_STAGE_COMPUTE_BIT, 0, push_bytes};
+    auto linfo = vk_struct<VkPipelineLayoutCreateInfo>(VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO);
+    linfo.setLayoutCount = 1;
+    linfo.pSetLayouts = &set_layout_;
+    linfo.pushConstantRangeCount = push_bytes ? 1 : 0;
+    linfo.pPushConstantRanges = push_bytes ? &range : nullptr;
+    HAZE_VK(vkCreatePipelineLayout(dev, &linfo, nullptr, &layout_));
+
+    auto minfo = vk_struct<VkShaderModuleCreateInfo>(VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO);
+    minfo.codeSize = words.size() * 4;
+    minfo.pCode = words.data();
+    vk_check(vkCreateShaderModule(dev, &minfo, nullptr, &module),
+             fmt::format("vkCreateShaderModule('{}')", path_));
+
+    std::vector<VkSpecializationMapEntry> entries(spec_constants.size());
+    for (uint32_t i = 0; i < entries.size(); ++i) entries[i] = {i, i * 4, 4};
+    VkSpecializationInfo spec{static_cast<uint32_t>(entries.size()), entries.data(),
+                              spec_constants.size() * 4, spec_constants.data()};
+    auto pinfo = vk_struct<VkComputePipelineCreateInfo>(VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO);
+    pinfo.stage =
+        vk_struct<VkPipelineShaderStageCreateInfo>(VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO);
+    pinfo.stage.stage = VK_SHADER_STAGE_COMPUTE_BIT;
+    pinfo.stage.module = module;
+    pinfo.stage.pName = "main";
+    pinfo.stage.pSpecializationInfo = spec_constants.empty() ? nullptr : &spec;
+    pinfo.layout = layout_;
+    auto t0 = std::chrono::steady_clock::now();
+    VkResult r = vkCreateComputePipelines(dev, ctx.pipeline_cache(), 1, &pinfo, nullptr, &pipeline_);
+    creation_ms_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    vk_check(r, fmt::format("vkCreateComputePipelines('{}')", path_));
+    ctx.set_object_name(VK_OBJECT_TYPE_PIPELINE, reinterpret_cast<uint64_t>(pipeline_), path_);
+    vkDestroyShaderModule(dev, module, nullptr);
+  } catch (...) {
+    if (module) vkDestroyShaderModule(dev, module, nullptr);
+    release();
+    throw;
+  }
+}
+
+void ComputePipeline::release() noexcept {
+  if (!ctx_) return;
+  VkDevice dev = ctx_->device();
+  if (pipeline_) vkDestroyPipeline(dev, pipeline_, nullptr);
+  if (layout_) vkDestroyPipelineLayout(dev, layout_, nullptr);
+  if (set_layout_) vkDestroyDescriptorSetLayout(dev, set_layout_, nullptr);
+  pipeline_ = VK_NULL_HANDLE;
+  layout_ = VK_NULL_HANDLE;
+  set_layout_ = VK_NULL_HANDLE;
+  ctx_ = nullptr;
+}
+
+ComputePipeline::~ComputePipeline() {
+  release();
+}
+
+ComputePipeline::ComputePipeline(ComputePipeline&& o) noexcept
+    : ctx_(std::exchange(o.ctx_, nullptr)),
+      set_layout_(std::exchange(o.set_layout_, VK_NULL_HANDLE)),
+      layout_(std::exchange(o.layout_, VK_NULL_HANDLE)),
+      pipeline_(std::exchange(o.pipeline_, VK_NULL_HANDLE)),
+      path_(std::move(o.path_)),
+      num_buffers_(o.num_buffers_),
+      push_bytes_(o.push_bytes_),
+      creation_ms_(o.creation_ms_),
+      local_size_(o.local_size_) {}
+
+ComputePipeline& ComputePipeline::operator=(ComputePipeline&& o) noexcept {
+  if (this != &o) {
+    release();
+    ctx_ = std::exchange(o.ctx_, nullptr);
+    set_layout_ = std::exchange(o.set_layout_, VK_NULL_HANDLE);
+    layout_ = std::exchange(o.layout_, VK_NULL_HANDLE);
+    pipeline_ = std::exchange(o.pipeline_, VK_NULL_HANDLE);
+    path_ = std::move(o.path_);
+    num_buffers_ = o.num_buffers_;
+    push_bytes_ = o.push_bytes_;
+    creation_ms_ = o.creation_ms_;
+    local_size_ = o.local_size_;
+  }
+  return *this;
+}
+
+void ComputePipeline::dispatch(VkCommandBuffer cmd, std::initializer_list<const Buffer*> buffers,
+                               const void* push, uint32_t gx, uint32_t gy, uint32_t gz) const {
+  dispatch(cmd, std::span<const Buffer* const>(buffers.begin(), buffers.size()), push, gx, gy, gz);
+}
+
+void ComputePipeline::dispatch(VkCommandBuffer cmd, std::span<const Buffer* const> buffers, const void* push,
+                               uint32_t gx, uint32_t gy, uint32_t gz) const {
+  if (!pipeline_) throw Error("dispatch of an empty gpu::ComputePipeline");
+  if (buffers.size() != num_buffers_)
+    throw Error(fmt::format("dispatch of '{}' with {} buffers, the pipeline declares {}", path_,
+                            buffers.size(), num_buffers_));
+  const auto& limits = ctx_->limits();
+  std::vector<VkDescriptorBufferInfo> infos(buffers.size());
+  std::vector<VkWriteDescriptorSet> writes(buffers.size());
+  for (uint32_t i = 0; i < buffers.size(); ++i) {
+    const Buffer* b = buffers[i];
+    if (!b || !b->valid()) throw Error(fmt::format("dispatch of '{}': buffer {} is empty", path_, i));
+    if (b->size() > limits.maxStorageBufferRange)
+      throw Error(
+          fmt::format("dispatch of '{}': buffer '{}' ({}) is larger than this device's maxStorageBufferRange "
+                      "({}); reach it through its device address",
+                      path_, b->name(), format_bytes(b->size()), format_bytes(limits.maxStorageBufferRange)));
+    infos[i] = {b->handle(), 0, VK_WHOLE_SIZE};
+    writes[i] = vk_struct<VkWriteDescriptorSet>(VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET);
+    writes[i].dstBinding = i;
+    writes[i].descriptorCount = 1;
+    writes[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+    writes[i].pBufferInfo = &infos[i];
+  }
+  if (push_bytes_ && !push)
+    throw Error(fmt::format("dispatch of '{}' without its {} bytes of push constants", path_, push_bytes_));
+  const uint32_t* maxg = limits.maxComputeWorkGroupCount;
+  if (gx > maxg[0] || gy > maxg[1] || gz > maxg[2])
+    throw Error(fmt::format("dispatch of '{}' with {}x{}x{} groups exceeds the device limit {}x{}x{}", path_,
+                            gx, gy, gz, maxg[0], maxg[1], maxg[2]));
+  vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline_);
+  if (!writes.empty())
+    ctx_->cmd_push_descriptor_set()(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, layout_, 0,
+                                    static_cast<uint32_t>(writes.size()), writes.data());
+  if (push_bytes_) vkCmdPushConstants(cmd, layout_, VK_SHADER_STAGE_COMPUTE_BIT, 0, push_bytes_, push);
+  vkCmdDispatch(cmd, gx, gy, gz);
+}
+
+}  // namespace haze::gpu

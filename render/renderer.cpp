@@ -1,0 +1,151 @@
+#include "render/renderer.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+
+#ifndef HAZE_DEFAULT_SPV_DIR
+#define HAZE_DEFAULT_SPV_DIR "spv"
+#endif
+
+namespace haze::render {
+
+std::string spv_dir() {
+  if (const char* e = std::getenv("HAZE_SPV_DIR"); e && *e) return e;
+  return HAZE_DEFAULT_SPV_DIR;
+}
+
+nlohmann::json PassStats::to_json() const {
+  std::vector<double> v = ms;
+  std::sort(v.begin(), v.end());
+  double total = 0;
+  for (double x : v) total += x;
+  nlohmann::json j;
+  j["count"] = v.size();
+  j["total_ms"] = total;
+  if (!v.empty()) {
+    j["median_ms"] = v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
+    j["min_ms"] = v.front();
+    j["max_ms"] = v.back();
+  }
+  return j;
+}
+
+Renderer::Renderer(gpu::Context& ctx, const scene::Scene& s) : ctx_(ctx), scene_(s) {
+  features_ = volume::features_of(s);
+  media_ = volume::build_media(s);
+  std::vector<glsl::GpuLight> lights = volume::build_lights(s);
+  num_lights_ = lights.size();
+  size_t num_local = s.lights.points.size() + s.lights.spots.size();
+  glsl::GpuScene gs = volume::build_gpu_scene(s, media_, lights.size(), num_local);
+  size_t pixels = size_t(s.render.width) * s.render.height;
+
+  scene_buf_ = gpu::Buffer(ctx, "scene", "scene data", sizeof(gs), "GpuScene");
+  scene_buf_.upload(&gs, sizeof(gs));
+  accum_buf_ = gpu::Buffer(ctx, "accumulation", "per-frame temporaries", pixels * glsl::ACC_STRIDE * 4,
+                           fmt::format("{} x f32 per pixel", glsl::ACC_STRIDE));
+  accum_buf_.fill_zero();
+  out_buf_ = gpu::Buffer(ctx, "resolved layers", "outputs", pixels * glsl::OUT_STRIDE * 4,
+                         fmt::format("{} x f32 per pixel", glsl::OUT_STRIDE));
+  ldr_buf_ = gpu::Buffer(ctx, "preview", "outputs", pixels * 4, "RGBA8");
+  // Buffers exist only for the features the scene uses.
+  if (features_.lights()) {
+    lights_buf_ = gpu::Buffer(ctx, "lights", "scene data", lights.size() * sizeof(glsl::GpuLight), "GpuLight");
+    lights_buf_.upload(lights);
+  }
+  if (features_.hetero) {
+    nanovdb_buf_ = gpu::Buffer(ctx, "nanovdb grids", "scene data", media_.nanovdb.size() * 4, "NanoVDB");
+    nanovdb_buf_.upload(media_.nanovdb);
+    media_buf_ = gpu::Buffer(ctx, "media", "scene data", media_.media.size() * sizeof(glsl::GpuMedium), "GpuMedium");
+    media_buf_.upload(media_.media);
+    majorant_buf_ = gpu::Buffer(ctx, "majorant grid", "scene data", media_.majorant.sigma_max.size() * 4,
+                                fmt::format("f32 {}x{}x{}", media_.majorant.res.x, media_.majorant.res.y,
+                                            media_.majorant.res.z));
+    majorant_buf_.upload(media_.majorant.sigma_max);
+  }
+
+  uint32_t num_buffers = 2 + (features_.lights() ? 1 : 0) + (features_.hetero ? 3 : 0);
+  std::string dir = spv_dir();
+  trace_ = std::make_unique<gpu::ComputePipeline>(
+      ctx, fmt::format("{}/volume/trace.comp.{}.spv", dir, features_.mask()), num_buffers, 4);
+  resolve_ = std::make_unique<gpu::ComputePipeline>(ctx, fmt::format("{}/volume/resolve.comp.0.spv", dir), 3, 16);
+  pipeline_ms_ = trace_->creation_ms() + resolve_->creation_ms();
+  timer_ = std::make_unique<gpu::Timer>(ctx, 16);
+}
+
+Renderer::~Renderer() = default;
+
+void Renderer::record_times() {
+  for (auto& [name, ms] : timer_->read_ms()) passes_[name].ms.push_back(ms);
+}
+
+void Renderer::add_samples(int n, const std::function<void(int, int)>& progress) {
+  const auto& r = scene_.render;
+  uint32_t gx = (uint32_t(r.width) + 7) / 8, gy = (uint32_t(r.height) + 7) / 8;
+  for (int i = 0; i < n; ++i) {
+    uint32_t sample_index = uint32_t(samples_);
+    ctx_.submit_and_wait([&](VkCommandBuffer cmd) {
+      timer_->reset(cmd);
+      timer_->begin(cmd, "trace");
+      std::vector<const gpu::Buffer*> b = {&scene_buf_, &accum_buf_};
+      if (features_.lights()) b.push_back(&lights_buf_);
+      if (features_.hetero) {
+        b.push_back(&nanovdb_buf_);
+        b.push_back(&media_buf_);
+        b.push_back(&majorant_buf_);
+      }
+      trace_->dispatch(cmd, b, &sample_index, gx, gy);
+      timer_->end(cmd);
+    });
+    record_times();
+    ++samples_;
+    if (progress) progress(i + 1, n);
+  }
+}
+
+Image Renderer::resolve() {
+  const auto& r = scene_.render;
+  uint32_t pixels = uint32_t(r.width) * uint32_t(r.height);
+  struct {
+    uint32_t pixels, samples;
+    float exposure_scale;
+    uint32_t tonemap;
+  } push{pixels, uint32_t(samples_), std::exp2(r.exposure),
+         r.tonemap == "aces" ? 0u : r.tonemap == "reinhard" ? 1u : 2u};
+  ctx_.submit_and_wait([&](VkCommandBuffer cmd) {
+    timer_->reset(cmd);
+    timer_->begin(cmd, "resolve");
+    resolve_->dispatch(cmd, {&accum_buf_, &out_buf_, &ldr_buf_}, &push, (pixels + 63) / 64);
+    timer_->end(cmd);
+  });
+  record_times();
+  Image img;
+  img.width = r.width;
+  img.height = r.height;
+  img.samples = samples_;
+  img.data = out_buf_.download_vector<float>();
+  img.ldr = ldr_buf_.download_vector<uint32_t>();
+  return img;
+}
+
+std::vector<float> Renderer::accum() const { return accum_buf_.download_vector<float>(); }
+
+nlohmann::json Renderer::stats() const {
+  nlohmann::json j;
+  j["device"] = ctx_.describe();
+  j["features"] = features_.describe();
+  j["shader_variant"] = features_.mask();
+  j["samples"] = samples_;
+  j["pipeline_creation_ms"] = pipeline_ms_;
+  nlohmann::json p = nlohmann::json::object();
+  for (const auto& [name, st] : passes_) p[name] = st.to_json();
+  j["passes"] = p;
+  j["memory"] = ctx_.ledger().to_json();
+  j["notes"] = media_.notes;
+  j["majorant_resolution"] = {media_.majorant.res.x, media_.majorant.res.y, media_.majorant.res.z};
+  return j;
+}
+
+}  // namespace haze::render

@@ -1,0 +1,74 @@
+// The frame: builds the passes and buffers a scene needs (and no others), runs them per sample,
+// resolves the accumulated sums into images, and reports timings and memory.
+#pragma once
+
+#include <functional>
+#include <map>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "gpu/gpu.hpp"
+#include "scene/scene.hpp"
+#include "volume/device_scene.hpp"
+#include "volume/features.hpp"
+
+namespace haze::render {
+
+// Folder of the compiled SPIR-V: $HAZE_SPV_DIR, else the build tree's.
+std::string spv_dir();
+
+// Resolved image: OUT_STRIDE floats per pixel (layout in shaders/volume/gpu_scene.glsl) plus the preview.
+struct Image {
+  int width = 0, height = 0;
+  int samples = 0;
+  std::vector<float> data;
+  std::vector<uint32_t> ldr;  // RGBA8, row 0 at the top
+  float at(int x, int y, uint32_t channel) const {
+    return data[(size_t(y) * width + x) * glsl::OUT_STRIDE + channel];
+  }
+};
+
+// Summary of per-pass GPU times over all submissions.
+struct PassStats {
+  std::vector<double> ms;
+  nlohmann::json to_json() const;
+};
+
+class Renderer {
+ public:
+  Renderer(gpu::Context& ctx, const scene::Scene& s);
+  ~Renderer();
+
+  // One dispatch per sample; progress(done, total) after each.
+  void add_samples(int n, const std::function<void(int, int)>& progress = {});
+  int samples() const { return samples_; }
+  Image resolve();
+  // Raw per-pixel sums (ACC_STRIDE floats per pixel) for tests.
+  std::vector<float> accum() const;
+
+  const volume::Features& features() const { return features_; }
+  const volume::DeviceMedia& media() const { return media_; }
+  const std::map<std::string, PassStats>& pass_stats() const { return passes_; }
+  double pipeline_ms() const { return pipeline_ms_; }
+  nlohmann::json stats() const;
+
+ private:
+  gpu::Context& ctx_;
+  scene::Scene scene_;
+  volume::Features features_;
+  volume::DeviceMedia media_;
+  size_t num_lights_ = 0;
+  gpu::Buffer scene_buf_, accum_buf_, lights_buf_, nanovdb_buf_, media_buf_, majorant_buf_;
+  gpu::Buffer out_buf_, ldr_buf_;
+  std::unique_ptr<gpu::ComputePipeline> trace_, resolve_;
+  std::unique_ptr<gpu::Timer> timer_;
+  std::map<std::string, PassStats> passes_;
+  double pipeline_ms_ = 0;
+  int samples_ = 0;
+
+  void record_times();
+};
+
+}  // namespace haze::render

@@ -1,0 +1,218 @@
+#include "scene/scene.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <glm/geometric.hpp>
+#include <glm/gtc/matrix_transform.hpp>
+#include <sstream>
+
+namespace haze::scene {
+
+using nlohmann::json;
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string vec_text(const glm::vec3& v) {
+  return fmt::format("[{}, {}, {}]", v.x, v.y, v.z);
+}
+
+// Normalises a direction in place; zero, tiny or non-finite lengths are an error.
+void normalize_direction(glm::vec3& d, const Where& w, std::string_view key, std::string_view meaning) {
+  float len = glm::length(d);
+  if (!(len > 1e-12f) || !std::isfinite(len)) {
+    w.fail(key, fmt::format("must be a nonzero vector ({}), got {}", meaning, vec_text(d)));
+  }
+  d /= len;
+}
+
+}  // namespace
+
+glm::mat4 Transform::matrix() const {
+  glm::mat4 m = glm::translate(glm::mat4(1.f), translate);
+  m = glm::rotate(m, glm::radians(rotate.z), glm::vec3(0, 0, 1));
+  m = glm::rotate(m, glm::radians(rotate.y), glm::vec3(0, 1, 0));
+  m = glm::rotate(m, glm::radians(rotate.x), glm::vec3(1, 0, 0));
+  return glm::scale(m, scale);
+}
+
+bool RenderSettings::wants(std::string_view output) const {
+  return std::find(outputs.begin(), outputs.end(), output) != outputs.end();
+}
+
+void validate(Camera& c, const Where& w) {
+  glm::vec3 forward = c.target - c.position;
+  if (!(glm::length(forward) > 1e-6f)) {
+    w.fail("target",
+           fmt::format("equals {} ({}); move the target or the camera so that it has a view direction",
+                       w.path("position"), vec_text(c.position)));
+  }
+  if (!(glm::length(c.up) > 1e-12f)) w.fail("up", "must be a nonzero vector, got " + vec_text(c.up));
+  if (glm::length(glm::cross(glm::normalize(forward), glm::normalize(c.up))) < 1e-4f) {
+    w.fail("up",
+           fmt::format("{} is parallel to the view direction (target - position); choose another up vector",
+                       vec_text(c.up)));
+  }
+}
+
+void validate(Transform& t, const Where& w) {
+  if (t.scale.x == 0.f || t.scale.y == 0.f || t.scale.z == 0.f) {
+    w.fail("scale",
+           "components must be nonzero (a zero scale flattens the volume), got " + vec_text(t.scale));
+  }
+}
+
+void validate(Emission& e, const Where& w) {
+  if (e.mode != "none" && e.grid.empty()) w.fail("grid", "must name a grid when mode is \"" + e.mode + "\"");
+}
+
+void validate(Medium& m, const Where& w) {
+  if (!m.file.empty() && m.procedural) {
+    w.fail("procedural", "cannot be used together with \"file\"; keep exactly one of the two");
+  }
+  if (m.file.empty() && !m.procedural) {
+    w.fail("", "needs a \"file\" (a .vdb path) or a \"procedural\" spec; add one of the two");
+  }
+  if (m.procedural) {
+    const json& p = *m.procedural;
+    if (!p.is_object())
+      w.fail("procedural", "expected an object like {\"kind\": \"cloud\"}, got " + p.dump());
+    auto kind = p.find("kind");
+    if (kind == p.end() || !kind->is_string()) {
+      w.fail("procedural.kind", "missing; set it to one of \"box\", \"sphere\", \"cloud\", \"height_fog\"");
+    }
+  }
+  if (m.grid.empty()) w.fail("grid", "must name a float grid, e.g. \"density\"");
+}
+
+void validate(Haze& h, const Where& w) {
+  if (!h.bounded) return;
+  for (int i = 0; i < 3; ++i) {
+    if (!(h.bounds_min[i] < h.bounds_max[i])) {
+      w.fail("bounds_max", fmt::format("must be greater than bounds_min in every component, got {} and {}",
+                                       vec_text(h.bounds_min), vec_text(h.bounds_max)));
+    }
+  }
+}
+
+void validate(Sun& s, const Where& w) {
+  normalize_direction(s.direction, w, "direction", "towards the sun");
+}
+
+void validate(SpotLight& s, const Where& w) {
+  normalize_direction(s.direction, w, "direction", "the axis of the cone");
+  if (s.falloff_angle > s.cone_angle) {
+    w.fail("falloff_angle", fmt::format("must be <= cone_angle ({}), got {}", s.cone_angle, s.falloff_angle));
+  }
+}
+
+void validate(RenderSettings& r, const Where& w) {
+  for (size_t i = 0; i < r.outputs.size(); ++i) {
+    if (std::find(r.outputs.begin(), r.outputs.begin() + i, r.outputs[i]) != r.outputs.begin() + i) {
+      w.fail(fmt::format("outputs[{}]", i), "\"" + r.outputs[i] + "\" is listed twice; list it once");
+    }
+  }
+}
+
+namespace {
+
+Scene read_scene(const json& j, const ReadContext& ctx, const std::string& base_dir) {
+  Scene s;
+  read_params(j, s, ctx);
+  s.path = ctx.origin;
+  s.base_dir = base_dir;
+  for (auto& m : s.media) {
+    if (!m.file.empty() && !base_dir.empty() && fs::path(m.file).is_relative()) {
+      m.file = (fs::path(base_dir) / m.file).lexically_normal().string();
+    }
+  }
+  return s;
+}
+
+// Line and column of a byte offset, for parse errors.
+std::pair<size_t, size_t> line_column(const std::string& text, size_t byte) {
+  size_t line = 1, column = 1;
+  for (size_t i = 0; i < byte && i < text.size(); ++i) {
+    if (text[i] == '\n')
+      line++, column = 1;
+    else
+      column++;
+  }
+  return {line, column};
+}
+
+}  // namespace
+
+Scene from_json(const json& j, const std::string& origin, const std::string& base_dir) {
+  ReadContext ctx{origin.empty() ? "<memory>" : origin, {}};
+  Scene s = read_scene(j, ctx, base_dir);
+  s.path = origin;
+  return s;
+}
+
+json to_json(const Scene& s) {
+  return write_params(s);
+}
+
+void apply_override(json& j, const std::string& assignment, const std::string& origin) {
+  apply_override_to<Scene>(j, assignment, origin);
+}
+
+std::vector<ParamInfo> describe() {
+  return describe_params<Scene>();
+}
+
+Scene load(const std::string& path, const std::vector<std::string>& overrides) {
+  std::error_code ec;
+  if (fs::is_directory(path, ec)) {
+    throw Error(fmt::format("cannot open scene file {}: it is a directory; pass the .json file", path));
+  }
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw Error(fmt::format("cannot open scene file {}: {}", path, std::strerror(errno)));
+  std::stringstream buffer;
+  buffer << in.rdbuf();
+  std::string text = buffer.str();
+
+  json j;
+  try {
+    // Comments are allowed: scene files are written by hand.
+    j = json::parse(text, nullptr, /*allow_exceptions=*/true, /*ignore_comments=*/true);
+  } catch (const json::parse_error& e) {
+    auto [line, column] = line_column(text, e.byte == 0 ? 0 : e.byte - 1);
+    // nlohmann's message starts with "[json.exception.parse_error.101] parse error at line L, column C: ";
+    // keep only the part after it, since the position is printed in our own format.
+    std::string what = e.what();
+    if (auto colon = what.find(": "); colon != std::string::npos) what = what.substr(colon + 2);
+    std::replace(what.begin(), what.end(), '\n', ' ');
+    throw Error(fmt::format("{}: line {}, column {}: malformed JSON: {}; fix the syntax there", path, line,
+                            column, what));
+  } catch (const json::exception& e) {
+    // Number overflow (1e999) is reported as out_of_range, without a position.
+    std::string what = e.what();
+    if (auto bracket = what.find("] "); bracket != std::string::npos) what = what.substr(bracket + 2);
+    throw Error(fmt::format("{}: malformed JSON: {}; fix the value", path, what));
+  }
+
+  ReadContext ctx{path, {}};
+  for (const auto& o : overrides) ctx.overrides.emplace_back(apply_override_to<Scene>(j, o, path), o);
+
+  std::string base_dir = fs::absolute(fs::path(path)).parent_path().lexically_normal().string();
+  Scene s = read_scene(j, ctx, base_dir);
+  s.path = path;
+  for (size_t i = 0; i < s.media.size(); ++i) {
+    const std::string& f = s.media[i].file;
+    if (!f.empty() && !fs::is_regular_file(f, ec)) {
+      ctx.fail(
+          fmt::format("media[{}].file", i),
+          fmt::format("no such file: {} (relative paths start at the scene file's folder {})", f, base_dir));
+    }
+  }
+  return s;
+}
+
+}  // namespace haze::scene

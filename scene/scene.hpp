@@ -1,0 +1,268 @@
+// The scene description: plain data read from JSON (docs/scene-format.md), no GPU, no OpenVDB.
+// Every struct lists its fields once in reflect() below; reading, writing, --set and the docs follow it.
+#pragma once
+
+#include <cstdint>
+#include <glm/mat4x4.hpp>
+#include <glm/vec3.hpp>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "scene/params.hpp"
+
+namespace haze::scene {
+
+struct Camera {
+  glm::vec3 position{0, 1, 5};
+  glm::vec3 target{0, 1, 0};
+  glm::vec3 up{0, 1, 0};
+  float fov_y = 45.f;  // vertical field of view in degrees, (0, 180)
+};
+
+struct Transform {
+  glm::vec3 translate{0};
+  glm::vec3 rotate{0};  // Euler angles in degrees: about x, then y, then z (world axes)
+  glm::vec3 scale{1};   // components nonzero
+  // Object to world: translate * Rz * Ry * Rx * scale.
+  glm::mat4 matrix() const;
+};
+
+struct Emission {
+  std::string mode = "none";  // none | blackbody | scale
+  std::string grid = "temperature";
+  float scale = 1.f;
+  float temperature_scale = 1.f;  // kelvin per grid unit, for blackbody
+};
+
+// One VDB medium.
+struct Medium {
+  std::string file;  // a .vdb; relative paths are resolved against Scene::base_dir on load...
+  std::optional<nlohmann::json> procedural;  // ...or a procedural spec {"kind": ...} checked by vdb/
+  std::string grid = "density";
+  float density_scale = 1.f;  // >= 0
+  glm::vec3 albedo{0.9f};     // each in [0, 1]
+  float g = 0.f;              // HG anisotropy in [-1, 1]; the renderer clamps to +-0.99 and reports it
+  Emission emission;
+  Transform transform;
+};
+
+// Homogeneous fog, everywhere or inside an axis-aligned box.
+struct Haze {
+  float sigma_t = 0.05f;  // extinction per world unit, >= 0
+  glm::vec3 albedo{0.9f};
+  float g = 0.f;
+  bool bounded = false;
+  glm::vec3 bounds_min{-1e3f};
+  glm::vec3 bounds_max{1e3f};
+};
+
+struct Sun {
+  glm::vec3 direction{0, 1, 0};  // towards the sun; nonzero, normalised on load
+  float irradiance = 5.f;
+  glm::vec3 color{1};
+  float angular_diameter = 0.53f;  // degrees, [0, 30]
+};
+
+struct PointLight {
+  glm::vec3 position{0};
+  glm::vec3 color{1};
+  float intensity = 10.f;  // radiant intensity (W/sr-like), >= 0
+};
+
+struct SpotLight {
+  glm::vec3 position{0};
+  glm::vec3 direction{0, -1, 0};  // nonzero, normalised on load
+  glm::vec3 color{1};
+  float intensity = 10.f;
+  float cone_angle = 30.f;    // degrees from the axis to the edge of the cone, (0, 90]
+  float falloff_angle = 5.f;  // degrees of smooth fade ending at the edge, [0, cone_angle]
+};
+
+// Constant radiance color * intensity from every direction.
+struct Environment {
+  glm::vec3 color{0};
+  float intensity = 1.f;
+};
+
+struct Lights {
+  std::optional<Sun> sun;
+  std::vector<PointLight> points;
+  std::vector<SpotLight> spots;
+  std::optional<Environment> environment;
+};
+
+struct RenderSettings {
+  int width = 320;
+  int height = 180;
+  int spp = 16;
+  int volume_samples = 1;  // distance samples per camera sample
+  int max_depth = 1;       // scattering events per path: 1 = single scattering
+  uint32_t seed = 1;
+  int majorant_resolution = 32;  // majorant cells along the longest axis of the media bounds
+  float exposure = 0.f;          // EV applied to the PNG preview
+  std::string tonemap = "aces";  // aces | reinhard | clamp
+  std::vector<std::string> outputs = {"exr", "png", "stats"};
+  bool pixel_jitter = true;              // random position inside the pixel (off: pixel centres)
+  float equiangular_probability = 0.5f;  // share of equi-angular sampling when point/spot lights exist
+  float rr_threshold = 0.1f;             // Russian roulette on ratio-tracked transmittance below this
+
+  bool wants(std::string_view output) const;  // is `output` listed in outputs
+};
+
+struct Scene {
+  Camera camera;
+  std::vector<Medium> media;
+  std::optional<Haze> haze;
+  Lights lights;
+  RenderSettings render;
+  std::string path;      // the file it came from (for messages), "" if from memory
+  std::string base_dir;  // folder used to resolve relative file paths
+};
+
+// Reads a scene file. `overrides` are "dotted.path=value" assignments applied to the JSON before it is
+// read (see apply_override). Relative media files are resolved against the file's folder and must exist.
+Scene load(const std::string& path, const std::vector<std::string>& overrides = {});
+// `origin` names the source in messages; relative media files are resolved against `base_dir` (if
+// nonempty) but not checked for existence.
+Scene from_json(const nlohmann::json& j, const std::string& origin, const std::string& base_dir);
+// Every setting, defaults included: what stats.json records. from_json(to_json(s)) reproduces s.
+nlohmann::json to_json(const Scene& s);
+// "render.spp=64", "media.0.density_scale=2", "lights.sun.irradiance=3", "camera.position=[0,2,8]".
+// The value is JSON if it parses as JSON, else a string (with "x,y,z" and "a,b" accepted for vectors and
+// string lists); a path the schema lacks, or an array element the JSON lacks, throws Error.
+void apply_override(nlohmann::json& j, const std::string& assignment, const std::string& origin);
+
+// Every scene parameter's dotted path, type, default, range and help ("media[].albedo").
+std::vector<ParamInfo> describe();
+
+// Cross-field checks, run after each object is read (found by argument-dependent lookup).
+void validate(Camera& c, const Where& w);
+void validate(Transform& t, const Where& w);
+void validate(Emission& e, const Where& w);
+void validate(Medium& m, const Where& w);
+void validate(Haze& h, const Where& w);
+void validate(Sun& s, const Where& w);
+void validate(SpotLight& s, const Where& w);
+void validate(RenderSettings& r, const Where& w);
+
+template <class V>
+void reflect(V& v, Camera& c) {
+  v.field("position", c.position, "eye position, world units");
+  v.field("target", c.target, "point the camera looks at; must differ from position");
+  v.field("up", c.up, "up direction; must not be parallel to target - position");
+  v.field("fov_y", c.fov_y, Range::open(0, 180), "vertical field of view, degrees");
+}
+
+template <class V>
+void reflect(V& v, Transform& t) {
+  v.field("translate", t.translate, "translation, world units");
+  v.field("rotate", t.rotate, "Euler angles in degrees, applied about x, then y, then z");
+  v.field("scale", t.scale, "scale per axis; components nonzero");
+}
+
+template <class V>
+void reflect(V& v, Emission& e) {
+  v.field(
+      "mode", e.mode, Choices{"none", "blackbody", "scale"},
+      "none; blackbody: grid * temperature_scale is a temperature in kelvin; scale: radiance = grid * scale");
+  v.field("grid", e.grid, "float grid that drives emission");
+  v.field("scale", e.scale, Range::at_least(0), "multiplier on the emitted radiance");
+  v.field("temperature_scale", e.temperature_scale, Range::at_least(0), "kelvin per grid unit (blackbody)");
+}
+
+template <class V>
+void reflect(V& v, Medium& m) {
+  v.field("file", m.file, ".vdb file, relative to the scene file's folder; exactly one of file/procedural");
+  v.field("procedural", m.procedural,
+          "procedural volume spec {\"kind\": ...}; exactly one of file/procedural");
+  v.field("grid", m.grid, "name of the float density grid");
+  v.field("density_scale", m.density_scale, Range::at_least(0), "sigma_t = density_scale * density");
+  v.field("albedo", m.albedo, Range{0, 1}, "single-scattering albedo per RGB channel");
+  v.field("g", m.g, Range{-1, 1}, "Henyey-Greenstein anisotropy (clamped to +-0.99 by the renderer)");
+  v.field("emission", m.emission, "emission from a grid");
+  v.field("transform", m.transform, "placement of the volume in the world");
+}
+
+template <class V>
+void reflect(V& v, Haze& h) {
+  v.field("sigma_t", h.sigma_t, Range::at_least(0), "extinction coefficient per world unit");
+  v.field("albedo", h.albedo, Range{0, 1}, "single-scattering albedo per RGB channel");
+  v.field("g", h.g, Range{-1, 1}, "Henyey-Greenstein anisotropy");
+  v.field("bounded", h.bounded, "false: fills all space; true: only the box bounds_min..bounds_max");
+  v.field("bounds_min", h.bounds_min, "lower corner of the box (when bounded)");
+  v.field("bounds_max", h.bounds_max, "upper corner of the box (when bounded); each component > bounds_min");
+}
+
+template <class V>
+void reflect(V& v, Sun& s) {
+  v.field("direction", s.direction, "direction towards the sun; nonzero, normalised on load");
+  v.field("irradiance", s.irradiance, Range::at_least(0), "irradiance on a surface facing the sun");
+  v.field("color", s.color, Range::at_least(0), "RGB tint, multiplies irradiance");
+  v.field("angular_diameter", s.angular_diameter, Range{0, 30}, "apparent size of the sun disc, degrees");
+}
+
+template <class V>
+void reflect(V& v, PointLight& p) {
+  v.field("position", p.position, "position, world units");
+  v.field("color", p.color, Range::at_least(0), "RGB tint, multiplies intensity");
+  v.field("intensity", p.intensity, Range::at_least(0), "radiant intensity (power per steradian)");
+}
+
+template <class V>
+void reflect(V& v, SpotLight& s) {
+  v.field("position", s.position, "position, world units");
+  v.field("direction", s.direction, "axis of the cone; nonzero, normalised on load");
+  v.field("color", s.color, Range::at_least(0), "RGB tint, multiplies intensity");
+  v.field("intensity", s.intensity, Range::at_least(0), "radiant intensity on the axis");
+  v.field("cone_angle", s.cone_angle, Range{0, 90, true}, "degrees from the axis to the edge of the cone");
+  v.field("falloff_angle", s.falloff_angle, Range{0, 90},
+          "degrees of smooth fade ending at the edge; <= cone_angle");
+}
+
+template <class V>
+void reflect(V& v, Environment& e) {
+  v.field("color", e.color, Range::at_least(0), "RGB radiance from every direction");
+  v.field("intensity", e.intensity, Range::at_least(0), "multiplier on color");
+}
+
+template <class V>
+void reflect(V& v, Lights& l) {
+  v.field("sun", l.sun, "distant light with a small disc");
+  v.field("points", l.points, "point lights");
+  v.field("spots", l.spots, "spot lights");
+  v.field("environment", l.environment, "constant environment radiance");
+}
+
+template <class V>
+void reflect(V& v, RenderSettings& r) {
+  v.field("width", r.width, Range{1, 16384}, "image width, pixels");
+  v.field("height", r.height, Range{1, 16384}, "image height, pixels");
+  v.field("spp", r.spp, Range{1, 1 << 20}, "camera samples per pixel");
+  v.field("volume_samples", r.volume_samples, Range{1, 64}, "distance samples per camera sample");
+  v.field("max_depth", r.max_depth, Range{0, 256},
+          "scattering events per path: 0 = emission and attenuation only, 1 = single scattering");
+  v.field("seed", r.seed, "random seed");
+  v.field("majorant_resolution", r.majorant_resolution, Range{1, 512},
+          "majorant grid cells along the longest axis of the media bounds");
+  v.field("exposure", r.exposure, Range{-64, 64}, "exposure of the PNG preview, EV");
+  v.field("tonemap", r.tonemap, Choices{"aces", "reinhard", "clamp"}, "tone curve of the PNG preview");
+  v.field("outputs", r.outputs, Choices{"exr", "png", "stats"}, "files to write (each at most once)");
+  v.field("pixel_jitter", r.pixel_jitter, "jitter camera rays inside the pixel (false: pixel centres)");
+  v.field("equiangular_probability", r.equiangular_probability, Range{0, 1},
+          "mixture weight of equi-angular distance sampling (scenes with point or spot lights)");
+  v.field("rr_threshold", r.rr_threshold, Range{0, 1},
+          "Russian roulette on ratio-tracked transmittance below this value (0: off)");
+}
+
+template <class V>
+void reflect(V& v, Scene& s) {
+  v.field("camera", s.camera, "the pinhole camera");
+  v.field("media", s.media, "VDB or procedural media");
+  v.field("haze", s.haze, "homogeneous fog");
+  v.field("lights", s.lights, "light sources");
+  v.field("render", s.render, "render settings");
+}
+
+}  // namespace haze::scene

@@ -1,0 +1,42 @@
+// Colour helpers shared by the renderer and the CPU tests.
+#ifndef HAZE_COLOR_GLSL
+#define HAZE_COLOR_GLSL
+#include "common/compat.glsl"
+
+// Rec.709 / sRGB-primaries luminance (DESIGN.md section 5; the reference used Rec.601).
+HAZE_INLINE float luminance(vec3 c) { return dot(c, vec3(0.2126f, 0.7152f, 0.0722f)); }
+
+// Planck's law at wavelength lambda_nm, relative to a 6500 K emitter at 550 nm, so that the scale
+// parameter of a blackbody medium reads as "radiance of a 6500 K body".
+HAZE_INLINE float planck_relative(float lambda_nm, float kelvin) {
+  const float c2 = 1.4387769e7f;  // h c / k in nm K
+  float l = lambda_nm / 550.0f;
+  float num = 1.0f / (l * l * l * l * l);
+  // exp(c2/(550*6500)) - 1 for the reference
+  const float ref = 54.9552f;
+  float e = exp(min(c2 / (lambda_nm * max(kelvin, 1.0f)), 80.0f)) - 1.0f;
+  return num * ref / e;
+}
+
+HAZE_INLINE vec3 blackbody_rgb(float kelvin) {
+  if (kelvin <= 0.0f) return vec3(0.0f);
+  return vec3(planck_relative(610.0f, kelvin), planck_relative(550.0f, kelvin), planck_relative(465.0f, kelvin));
+}
+
+// Narkowicz's ACES filmic fit.
+HAZE_INLINE vec3 tonemap_aces(vec3 x) {
+  x = max(x, vec3(0.0f)) * 0.6f;
+  return clamp((x * (2.51f * x + 0.03f)) / (x * (2.43f * x + 0.59f) + 0.14f), vec3(0.0f), vec3(1.0f));
+}
+
+HAZE_INLINE vec3 tonemap_reinhard(vec3 x) {
+  x = max(x, vec3(0.0f));
+  return x / (vec3(1.0f) + x);
+}
+
+HAZE_INLINE float srgb_encode(float c) {
+  c = clamp(c, 0.0f, 1.0f);
+  return c <= 0.0031308f ? 12.92f * c : 1.055f * pow(c, 1.0f / 2.4f) - 0.055f;
+}
+
+#endif

@@ -1,0 +1,96 @@
+// Sampling routines and their pdfs, shared by the shaders and the CPU tests (chi-square tests call these).
+#ifndef HAZE_SAMPLING_GLSL
+#define HAZE_SAMPLING_GLSL
+#include "common/compat.glsl"
+
+// 1 - exp(-x) without cancellation for small x (GLSL has no expm1).
+HAZE_INLINE float one_minus_exp_neg(float x) {
+  return x < 1e-3f ? x * (1.0f - x * 0.5f * (1.0f - x * (1.0f / 3.0f))) : 1.0f - exp(-x);
+}
+
+// log(1 - x) for x in [0, 1), accurate for small x.
+HAZE_INLINE float log_one_minus(float x) { return x < 1e-4f ? -x * (1.0f + 0.5f * x) : log(1.0f - x); }
+
+// Orthonormal basis around a unit vector n (Duff et al. 2017).
+HAZE_INLINE vec3 onb_to_world(vec3 n, vec3 local) {
+  float s = n.z >= 0.0f ? 1.0f : -1.0f;
+  float a = -1.0f / (s + n.z);
+  float b = n.x * n.y * a;
+  vec3 t = vec3(1.0f + s * n.x * n.x * a, s * b, -s * n.x);
+  vec3 bt = vec3(b, s + n.y * n.y * a, -n.y);
+  return local.x * t + local.y * bt + local.z * n;
+}
+
+HAZE_INLINE vec3 direction_around(vec3 axis, float cos_theta, float phi) {
+  float sin_theta = sqrt(max(0.0f, 1.0f - cos_theta * cos_theta));
+  return onb_to_world(axis, vec3(sin_theta * cos(phi), sin_theta * sin(phi), cos_theta));
+}
+
+HAZE_INLINE vec3 sample_uniform_sphere(vec2 u) {
+  float z = 1.0f - 2.0f * u.x;
+  float r = sqrt(max(0.0f, 1.0f - z * z));
+  float phi = 2.0f * PI * u.y;
+  return vec3(r * cos(phi), r * sin(phi), z);
+}
+
+// Uniform direction in the cone of half-angle acos(cos_max) around axis; pdf = 1 / (2 pi (1 - cos_max)).
+HAZE_INLINE vec3 sample_uniform_cone(vec3 axis, float cos_max, vec2 u) {
+  float cos_theta = 1.0f - u.x * (1.0f - cos_max);
+  return direction_around(axis, cos_theta, 2.0f * PI * u.y);
+}
+
+// Henyey-Greenstein phase function. mu is the cosine of the deflection angle between the incoming and
+// outgoing travel directions (mu = 1: forward scattering). Normalised over the sphere.
+HAZE_INLINE float hg_phase(float mu, float g) {
+  float denom = 1.0f + g * g - 2.0f * g * mu;
+  return INV_4PI * (1.0f - g * g) / (denom * sqrt(max(denom, 1e-12f)));
+}
+
+// Inverse CDF of HG in mu; the pdf of the returned direction is hg_phase(mu, g).
+HAZE_INLINE float hg_sample_mu(float g, float u) {
+  if (abs(g) < 1e-3f) return 1.0f - 2.0f * u;
+  float s = (1.0f - g * g) / (1.0f - g + 2.0f * g * u);
+  return clamp((1.0f + g * g - s * s) / (2.0f * g), -1.0f, 1.0f);
+}
+
+HAZE_INLINE vec3 hg_sample(vec3 travel_dir, float g, vec2 u) {
+  return direction_around(travel_dir, hg_sample_mu(g, u.x), 2.0f * PI * u.y);
+}
+
+// Equi-angular sampling of t on [t0, t1] along o + t d towards a point c (Kulla and Fajardo 2012).
+struct EquiAngular {
+  float delta;  // t of the closest approach
+  float D;      // distance of c from the ray (kept away from 0)
+  float theta_a, theta_b;
+};
+
+HAZE_INLINE EquiAngular equi_angular_setup(vec3 o, vec3 d, vec3 c, float t0, float t1) {
+  EquiAngular e;
+  e.delta = dot(c - o, d);
+  e.D = max(length(c - (o + e.delta * d)), 1e-6f * max(1.0f, abs(e.delta)));
+  e.theta_a = atan((t0 - e.delta) / e.D);
+  e.theta_b = atan((t1 - e.delta) / e.D);
+  return e;
+}
+
+HAZE_INLINE float equi_angular_sample(EquiAngular e, float u) {
+  return e.delta + e.D * tan(mix(e.theta_a, e.theta_b, u));
+}
+
+HAZE_INLINE float equi_angular_pdf(EquiAngular e, float t) {
+  float x = t - e.delta;
+  return e.D / (max(e.theta_b - e.theta_a, 1e-20f) * (e.D * e.D + x * x));
+}
+
+// Exponential in optical depth truncated to [0, tau_total]: the majorant free-flight distribution
+// restricted to a segment, so no sample is wasted beyond it.
+HAZE_INLINE float truncated_exp_sample_tau(float tau_total, float u) {
+  return -log_one_minus(u * one_minus_exp_neg(tau_total));
+}
+
+// Density in tau of the above; multiply by sigma_maj(t) for the density in t.
+HAZE_INLINE float truncated_exp_pdf_tau(float tau, float tau_total) {
+  return exp(-tau) / max(one_minus_exp_neg(tau_total), 1e-30f);
+}
+
+#endif

@@ -1,0 +1,55 @@
+// Device-side scene layout, shared with the host (render/ includes this with GLM so both sides agree on
+// every offset). Only vec4/ivec4/uvec4/mat4 members: std430 and C++ then have the same layout.
+#ifndef HAZE_GPU_SCENE_GLSL
+#define HAZE_GPU_SCENE_GLSL
+
+// Light types in GpuLight.position.w. Local lights come first in the light array.
+const uint LIGHT_POINT = 0u;  // point and spot (a point is a spot with no falloff)
+const uint LIGHT_SUN = 1u;
+const uint LIGHT_ENV = 2u;
+
+struct GpuLight {
+  vec4 position;   // xyz position (local), w: type
+  vec4 radiance;   // rgb: intensity (local), irradiance (sun), radiance (env)
+  vec4 direction;  // xyz: spot axis (local), direction towards the sun
+  vec4 params;     // local: x cos_outer, y cos_inner of the spot falloff; sun: x cos of the half angle
+};
+
+struct GpuMedium {
+  mat4 world_to_index;
+  vec4 albedo_g;     // rgb albedo, w: HG g (clamped)
+  vec4 world_min;    // world bounds of the medium (dilated by one voxel); w: density scale
+  vec4 world_max;    // w: emission scale
+  uvec4 grid;        // x: byte offset of the density grid, y: byte offset of the emission grid, z: emission mode
+  vec4 emission;     // x: kelvin per grid unit (blackbody)
+};
+
+struct GpuScene {
+  vec4 cam_position;
+  vec4 cam_right;    // scaled by tan(fov/2) * aspect
+  vec4 cam_up;       // scaled by tan(fov/2)
+  vec4 cam_forward;
+  uvec4 size;        // width, height, volume samples per camera sample, max scattering depth
+  uvec4 counts;      // media, lights, local lights, seed
+  vec4 haze_albedo_g;  // rgb albedo, w: g
+  vec4 haze_min;       // xyz bounds, w: sigma_t
+  vec4 haze_max;
+  vec4 env;            // rgb radiance seen by camera rays that leave the scene
+  vec4 sun_direction;  // xyz towards the sun, w: cos of the half angle (1: no visible disk)
+  vec4 sun_radiance;   // rgb radiance of the visible disk
+  uvec4 maj_res;       // majorant grid resolution; w: max tracking steps per query
+  vec4 maj_min;        // world bounds of the majorant grid
+  vec4 maj_max;
+  vec4 settings;       // x: equi-angular probability, y: Russian roulette threshold, z: pixel jitter (0/1)
+};
+
+// Accumulation layout per pixel: sums, then sums of squares.
+const uint ACC_L = 0u, ACC_VOL = 3u, ACC_SURF = 6u, ACC_T = 9u, ACC_DEPTH = 10u;
+const uint ACC_L2 = 11u, ACC_VOL2 = 14u, ACC_SURF2 = 17u, ACC_T2 = 20u;
+const uint ACC_STRIDE = 21u;
+
+// Resolved output per pixel.
+const uint OUT_L = 0u, OUT_VOL = 3u, OUT_SURF = 6u, OUT_T = 9u, OUT_DEPTH = 10u, OUT_VAR = 11u;
+const uint OUT_STRIDE = 14u;
+
+#endif

@@ -1,0 +1,332 @@
+// The medium seen by the tracker: sigma_t at a point (with the stochastic choice of the scattering
+// component), the piecewise-constant majorant along a ray, and ratio/delta tracking on top of them.
+// Expects: scene (GpuScene), and with HAZE_HETERO the buffers media[], majorant[] and PNanoVDB.
+#ifndef HAZE_MEDIUM_GLSL
+#define HAZE_MEDIUM_GLSL
+
+struct MediumSample {
+  float sigma_t;        // total extinction
+  float sigma_control;  // the homogeneous haze part of sigma_t (tracked in closed form)
+  vec3 albedo;          // of the chosen component (chosen with probability sigma_t,i / sigma_t)
+  float g;
+  vec3 emit;            // (1 - albedo_i) * Le_i of the chosen component: E[sigma_t * emit] = sigma_a * Le
+};
+
+HAZE_INLINE vec2 ray_box(vec3 o, vec3 d, vec3 bmin, vec3 bmax) {
+  vec3 inv = 1.0f / d;  // +-inf for axis-parallel rays is what the slab test wants
+  vec3 ta = (bmin - o) * inv, tb = (bmax - o) * inv;
+  vec3 tmin = min(ta, tb), tmax = max(ta, tb);
+  // NaN (0 * inf on a slab plane) must not poison the result: max/min ignore it in GLSL only sometimes.
+  float t0 = max(max(isnan(tmin.x) ? -T_INF : tmin.x, isnan(tmin.y) ? -T_INF : tmin.y), isnan(tmin.z) ? -T_INF : tmin.z);
+  float t1 = min(min(isnan(tmax.x) ? T_INF : tmax.x, isnan(tmax.y) ? T_INF : tmax.y), isnan(tmax.z) ? T_INF : tmax.z);
+  return vec2(t0, t1);
+}
+
+HAZE_INLINE bool inside_box(vec3 x, vec3 bmin, vec3 bmax) { return all(greaterThanEqual(x, bmin)) && all(lessThanEqual(x, bmax)); }
+
+// Far end of everything that holds a medium, seen from o along d (0 when nothing is hit).
+float media_exit(vec3 o, vec3 d) {
+  float t = 0.0f;
+#if HAZE_HAZE
+  vec2 h = ray_box(o, d, scene.haze_min.xyz, scene.haze_max.xyz);
+  if (h.x <= h.y && h.y > 0.0f) t = max(t, h.y);
+#endif
+#if HAZE_HETERO
+  vec2 g = ray_box(o, d, scene.maj_min.xyz, scene.maj_max.xyz);
+  if (g.x <= g.y && g.y > 0.0f) t = max(t, g.y);
+#endif
+  return min(t, T_INF);
+}
+
+#if HAZE_HETERO
+// Trilinear density at an index-space position: one PNanoVDB lookup call site, corners in a loop that
+// is kept rolled (each inlined lookup costs about a second of pipeline creation on lavapipe).
+float grid_trilinear(uint grid_offset, vec3 p) {
+  pnanovdb_grid_handle_t grid;
+  grid.address.byte_offset = grid_offset;
+  pnanovdb_buf_t buf;
+  pnanovdb_readaccessor_t acc;
+  pnanovdb_readaccessor_init(acc, pnanovdb_tree_get_root(buf, pnanovdb_grid_get_tree(buf, grid)));
+  vec3 pf = floor(p);
+  ivec3 i0 = ivec3(pf);
+  vec3 f = p - pf;
+  float sum = 0.0f;
+  [[dont_unroll]] for (int c = 0; c < 8; ++c) {
+    ivec3 o = ivec3(c & 1, (c >> 1) & 1, c >> 2);
+    vec3 w3 = mix(vec3(1.0f) - f, f, vec3(o));
+    ivec3 ijk = i0 + o;
+    pnanovdb_address_t a = pnanovdb_readaccessor_get_value_address(PNANOVDB_GRID_TYPE_FLOAT, buf, acc, ijk);
+    sum += w3.x * w3.y * w3.z * pnanovdb_read_float(buf, a);
+  }
+  return sum;
+}
+#endif
+
+// sigma_t at x, and one component chosen with probability sigma_t,i / sigma_t using the single uniform u
+// (streaming selection: u is rescaled after each decision).
+MediumSample sample_medium(vec3 x, float u) {
+  MediumSample ms;
+  ms.sigma_t = 0.0f;
+  ms.sigma_control = 0.0f;
+  ms.albedo = vec3(0.0f);
+  ms.g = 0.0f;
+  ms.emit = vec3(0.0f);
+#if HAZE_HAZE
+  if (inside_box(x, scene.haze_min.xyz, scene.haze_max.xyz)) {
+    ms.sigma_t = scene.haze_min.w;
+    ms.sigma_control = scene.haze_min.w;
+    ms.albedo = scene.haze_albedo_g.rgb;
+    ms.g = scene.haze_albedo_g.w;
+  }
+#endif
+#if HAZE_HETERO
+  int chosen = -1;
+  vec3 chosen_p = vec3(0.0f);
+  [[dont_unroll]] for (uint m = 0u; m < scene.counts.x; ++m) {
+    if (!inside_box(x, media[m].world_min.xyz, media[m].world_max.xyz)) continue;
+    vec3 p = (media[m].world_to_index * vec4(x, 1.0f)).xyz;
+    // Negative or non-finite voxel values count as empty space.
+    float s = media[m].world_min.w * grid_trilinear(media[m].grid.x, p);
+    if (!(s > 0.0f) || isinf(s)) continue;
+    ms.sigma_t += s;
+    float p_take = s / ms.sigma_t;
+    if (u < p_take) {
+      chosen = int(m);
+      chosen_p = p;
+      u = u / p_take;
+    } else {
+      u = (u - p_take) / (1.0f - p_take);
+    }
+  }
+  if (chosen >= 0) {
+    ms.albedo = media[chosen].albedo_g.rgb;
+    ms.g = media[chosen].albedo_g.w;
+#if HAZE_EMISSION
+    uint mode = media[chosen].grid.z;
+    if (mode != 0u) {
+      float v = max(grid_trilinear(media[chosen].grid.y, chosen_p), 0.0f);
+      vec3 Le = mode == 1u ? vec3(v) : blackbody_rgb(v * media[chosen].emission.x);
+      ms.emit = (vec3(1.0f) - ms.albedo) * media[chosen].world_max.w * Le;
+    }
+#endif
+  }
+#endif
+  return ms;
+}
+
+// Piecewise-constant majorant along a ray: the heterogeneous part from a 3D DDA over the majorant grid,
+// the haze part from its box. Segments break at cell and box boundaries.
+struct MajorantIter {
+  vec3 o, d;
+  float t, t1;
+  float h0, h1;  // haze interval
+  float g0, g1;  // majorant-grid interval
+  bool dda_started;
+  ivec3 cell;
+  ivec3 step;
+  vec3 t_max, t_delta;
+};
+
+MajorantIter maj_init(vec3 o, vec3 d, float t0, float t1) {
+  MajorantIter it;
+  it.o = o;
+  it.d = d;
+  it.t = t0;
+  it.t1 = t1;
+  it.h0 = T_INF;
+  it.h1 = -T_INF;
+  it.g0 = T_INF;
+  it.g1 = -T_INF;
+#if HAZE_HAZE
+  vec2 h = ray_box(o, d, scene.haze_min.xyz, scene.haze_max.xyz);
+  if (h.x <= h.y) {
+    it.h0 = h.x;
+    it.h1 = h.y;
+  }
+#endif
+#if HAZE_HETERO
+  vec2 g = ray_box(o, d, scene.maj_min.xyz, scene.maj_max.xyz);
+  if (g.x <= g.y) {
+    it.g0 = g.x;
+    it.g1 = g.y;
+  }
+#endif
+  it.dda_started = false;
+  it.cell = ivec3(0);
+  it.step = ivec3(0);
+  it.t_max = vec3(0.0f);
+  it.t_delta = vec3(0.0f);
+  return it;
+}
+
+// Next segment [t_a, t_b) with majorants split into heterogeneous and haze parts. False at the end.
+bool maj_next(INOUT(MajorantIter) it, OUT(float) sigma_het, OUT(float) sigma_haze, OUT(float) t_a, OUT(float) t_b) {
+  sigma_het = 0.0f;
+  sigma_haze = 0.0f;
+  t_a = it.t;
+  t_b = it.t1;
+  if (!(it.t < it.t1)) return false;
+#if HAZE_HAZE
+  if (t_a < it.h0) {
+    t_b = min(t_b, it.h0);
+  } else if (t_a < it.h1) {
+    sigma_haze = scene.haze_min.w;
+    t_b = min(t_b, it.h1);
+  }
+#endif
+#if HAZE_HETERO
+  if (t_a < it.g0) {
+    t_b = min(t_b, it.g0);
+  } else if (t_a < it.g1) {
+    vec3 res = vec3(scene.maj_res.xyz);
+    vec3 cs = (scene.maj_max.xyz - scene.maj_min.xyz) / res;
+    if (!it.dda_started) {
+      it.dda_started = true;
+      vec3 p = (it.o + it.d * t_a - scene.maj_min.xyz) / cs;
+      it.cell = clamp(ivec3(floor(p)), ivec3(0), ivec3(scene.maj_res.xyz) - 1);
+      it.step = ivec3(sign(it.d));
+      vec3 next = scene.maj_min.xyz + (vec3(it.cell) + max(vec3(it.step), vec3(0.0f))) * cs;
+      for (int a = 0; a < 3; ++a) {
+        if (it.d[a] == 0.0f) {
+          it.t_max[a] = T_INF;
+          it.t_delta[a] = T_INF;
+        } else {
+          it.t_max[a] = (next[a] - it.o[a]) / it.d[a];
+          it.t_delta[a] = cs[a] / abs(it.d[a]);
+        }
+      }
+    }
+    ivec3 r = ivec3(scene.maj_res.xyz);
+    sigma_het = majorant[(it.cell.z * r.y + it.cell.y) * r.x + it.cell.x];
+    float t_exit = max(min(min(it.t_max.x, it.t_max.y), it.t_max.z), t_a);
+    t_exit = min(t_exit, it.g1);
+    if (t_exit <= t_b) {
+      t_b = t_exit;
+      // Step the DDA into the next cell; leaving the grid ends its interval here.
+      int a = it.t_max.x <= it.t_max.y ? (it.t_max.x <= it.t_max.z ? 0 : 2) : (it.t_max.y <= it.t_max.z ? 1 : 2);
+      it.cell[a] += it.step[a];
+      it.t_max[a] += it.t_delta[a];
+      if (it.cell[a] < 0 || it.cell[a] >= r[a]) it.g1 = t_exit;
+    }
+  }
+#endif
+  it.t = t_b;
+  return true;
+}
+
+// Optical depth of the full majorant from t0 up to where it reaches tau_stop (or t1).
+struct MajWalk {
+  float tau;    // accumulated majorant optical depth
+  float t;      // where the walk stopped
+  float sigma;  // majorant at t
+};
+
+MajWalk maj_walk(vec3 o, vec3 d, float t0, float t1, float tau_stop) {
+  MajWalk w;
+  w.tau = 0.0f;
+  w.t = t0;
+  w.sigma = 0.0f;
+  MajorantIter it = maj_init(o, d, t0, t1);
+  float s_het, s_haze, ta, tb;
+  uint steps = 0u;
+  while (maj_next(it, s_het, s_haze, ta, tb) && steps++ < scene.maj_res.w) {
+    float s = s_het + s_haze;
+    float dtau = s * (tb - ta);
+    w.sigma = s;
+    if (w.tau + dtau >= tau_stop && s > 0.0f) {
+      w.t = ta + (tau_stop - w.tau) / s;
+      w.tau = tau_stop;
+      return w;
+    }
+    w.tau += dtau;
+    w.t = tb;
+  }
+  return w;
+}
+
+const int TRACK_RATIO = 0;  // transmittance estimate T over [t0, t1]
+const int TRACK_DELTA = 1;  // first real collision in [t0, t1]
+
+struct TrackResult {
+  float T;
+  bool hit;
+  float t;
+  MediumSample ms;  // at the collision (DELTA) or at t1 (RATIO with eval_end)
+};
+
+// Ratio tracking uses the haze as a control: its transmittance is taken in closed form and only the
+// heterogeneous residual is tracked (Novak et al. 2014). Each loop iteration does at most one lookup.
+TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, INOUT(uint) rng) {
+  TrackResult r;
+  r.T = 1.0f;
+  r.hit = false;
+  r.t = t1;
+  r.ms.sigma_t = 0.0f;
+  r.ms.sigma_control = 0.0f;
+  r.ms.albedo = vec3(0.0f);
+  r.ms.g = 0.0f;
+  r.ms.emit = vec3(0.0f);
+  float rr = scene.settings.y;
+  MajorantIter it = maj_init(o, d, t0, t1);
+  float s_het = 0.0f, s_haze = 0.0f, ta = t0, tb = t0;
+  float sigma_maj = 0.0f;
+  float tau_control = 0.0f;
+  float t = t0;
+  float tau_left = -log_one_minus(rng_next(rng));
+  bool end_done = !eval_end;
+  uint steps = 0u;
+  for (;;) {
+    // Advance over segments (no lookups) until the next tentative collision or the end.
+    bool found = false;
+    for (;;) {
+      if (!(t < tb)) {
+        if (!maj_next(it, s_het, s_haze, ta, tb)) break;
+        t = ta;
+        sigma_maj = mode == TRACK_RATIO ? s_het : s_het + s_haze;
+        if (mode == TRACK_RATIO) tau_control += s_haze * (tb - ta);
+      }
+      float dt = tb - t;
+      if (sigma_maj * dt > tau_left) {
+        t += tau_left / sigma_maj;
+        found = true;
+        break;
+      }
+      tau_left -= sigma_maj * dt;
+      t = tb;
+    }
+    if (!found && end_done) break;
+    bool at_end = !found;
+    vec3 x = o + d * (at_end ? t1 : t);
+    MediumSample ms = sample_medium(x, rng_next(rng));
+    if (at_end) {
+      r.ms = ms;
+      break;
+    }
+    if (mode == TRACK_RATIO) {
+      r.T *= clamp(1.0f - (ms.sigma_t - ms.sigma_control) / sigma_maj, 0.0f, 1.0f);
+      if (r.T < rr) {
+        // Russian roulette keeps the estimate unbiased while bounding the walk.
+        if (rng_next(rng) < 0.5f) {
+          r.T = 0.0f;
+          break;
+        }
+        r.T *= 2.0f;
+      }
+    } else if (rng_next(rng) * sigma_maj < ms.sigma_t) {
+      r.hit = true;
+      r.t = t;
+      r.ms = ms;
+      break;
+    }
+    tau_left = -log_one_minus(rng_next(rng));
+    // Bounded work per query: a pathological majorant cannot hang the dispatch.
+    if (++steps >= scene.maj_res.w) {
+      r.T = 0.0f;
+      break;
+    }
+  }
+  if (mode == TRACK_RATIO) r.T *= exp(-tau_control);
+  return r;
+}
+
+#endif

@@ -1,0 +1,37 @@
+#version 460
+// Per-pixel means of the accumulated sums, the sample variance of the final radiance, and the
+// tonemapped 8-bit preview.
+#extension GL_GOOGLE_include_directive : require
+layout(local_size_x = 64) in;
+
+#include "common/compat.glsl"
+#include "common/color.glsl"
+#include "volume/gpu_scene.glsl"
+
+layout(std430, binding = 0) readonly buffer AccumBuffer { float accum[]; };
+layout(std430, binding = 1) writeonly buffer OutBuffer { float outp[]; };
+layout(std430, binding = 2) writeonly buffer LdrBuffer { uint ldr[]; };
+
+layout(push_constant) uniform Push {
+  uint pixels;
+  uint samples;
+  float exposure_scale;
+  uint tonemap;  // 0 aces, 1 reinhard, 2 clamp
+} pc;
+
+void main() {
+  uint p = gl_GlobalInvocationID.x;
+  if (p >= pc.pixels) return;
+  uint a = p * ACC_STRIDE, o = p * OUT_STRIDE;
+  float n = float(max(pc.samples, 1u));
+  for (uint k = 0u; k < 11u; ++k) outp[o + k] = accum[a + k] / n;
+  vec3 mean = vec3(accum[a + ACC_L], accum[a + ACC_L + 1], accum[a + ACC_L + 2]) / n;
+  vec3 m2 = vec3(accum[a + ACC_L2], accum[a + ACC_L2 + 1], accum[a + ACC_L2 + 2]) / n;
+  vec3 var = pc.samples > 1u ? max(m2 - mean * mean, vec3(0.0f)) * (n / (n - 1.0f)) : vec3(0.0f);
+  for (uint c = 0u; c < 3u; ++c) outp[o + OUT_VAR + c] = var[c];
+
+  vec3 x = mean * pc.exposure_scale;
+  vec3 m = pc.tonemap == 0u ? tonemap_aces(x) : (pc.tonemap == 1u ? tonemap_reinhard(x) : clamp(x, vec3(0.0f), vec3(1.0f)));
+  uvec3 c8 = uvec3(round(vec3(srgb_encode(m.r), srgb_encode(m.g), srgb_encode(m.b)) * 255.0f));
+  ldr[p] = c8.r | (c8.g << 8u) | (c8.b << 16u) | (255u << 24u);
+}

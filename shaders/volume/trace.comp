@@ -1,0 +1,236 @@
+#version 460
+// One camera sample per pixel per dispatch: the surface term T(0,t_s) L_bg and the volume term
+// (N distance samples on [0, t_s] from the mixture q(t), NEE with ratio-tracked shadow rays, and a
+// delta-tracked random walk for multiple scattering). Results are added to per-pixel sums and squares.
+//
+// The estimator runs as a small state machine whose loop issues one tracking query per iteration, so the
+// tracker (and its single density-lookup call site) is inlined once.
+#extension GL_GOOGLE_include_directive : require
+#extension GL_EXT_control_flow_attributes : require
+
+layout(local_size_x = 8, local_size_y = 8) in;
+
+#include "common/compat.glsl"
+#include "common/rng.glsl"
+#include "common/sampling.glsl"
+#include "common/color.glsl"
+#include "volume/gpu_scene.glsl"
+
+#if HAZE_SUN || HAZE_ENV || HAZE_LOCAL
+#define HAZE_LIGHTS 1
+#endif
+
+layout(std430, binding = 0) readonly buffer SceneBuffer { GpuScene scene; };
+layout(std430, binding = 1) buffer AccumBuffer { float accum[]; };
+#if HAZE_LIGHTS
+layout(std430, binding = 2) readonly buffer LightBuffer { GpuLight lights[]; };
+#define BINDING_AFTER_LIGHTS 3
+#else
+#define BINDING_AFTER_LIGHTS 2
+#endif
+#if HAZE_HETERO
+layout(std430, binding = BINDING_AFTER_LIGHTS) readonly buffer NanoBuffer { uint pnanovdb_buf_data[]; };
+layout(std430, binding = BINDING_AFTER_LIGHTS + 1) readonly buffer MediaBuffer { GpuMedium media[]; };
+layout(std430, binding = BINDING_AFTER_LIGHTS + 2) readonly buffer MajorantBuffer { float majorant[]; };
+#define PNANOVDB_GLSL
+#include "nanovdb/PNanoVDB.h"
+#endif
+
+layout(push_constant) uniform Push { uint sample_index; } pc;
+
+#include "volume/medium.glsl"
+#include "volume/lights.glsl"
+
+const int ST_SURFACE = 0;  // ratio tracking T(0, t_s) for the surface term
+const int ST_CAMERA = 1;   // ratio tracking T(0, t_j) to a sampled distance, with the medium at t_j
+const int ST_SHADOW = 2;   // ratio tracking towards a light
+const int ST_WALK = 3;     // delta tracking to the next scattering vertex
+
+void main() {
+  uvec2 pix = gl_GlobalInvocationID.xy;
+  uint W = scene.size.x, H = scene.size.y;
+  if (pix.x >= W || pix.y >= H) return;
+  uint pixel = pix.y * W + pix.x;
+  uint rng = rng_init(scene.counts.w, pixel, pc.sample_index);
+
+  vec2 jitter = scene.settings.z > 0.5f ? vec2(rng_next(rng), rng_next(rng)) : vec2(0.5f);
+  vec2 ndc = (vec2(pix) + jitter) / vec2(W, H) * 2.0f - 1.0f;
+  vec3 cam_o = scene.cam_position.xyz;
+  vec3 cam_d = normalize(scene.cam_forward.xyz + ndc.x * scene.cam_right.xyz - ndc.y * scene.cam_up.xyz);
+  float t_s = media_exit(cam_o, cam_d);
+  uint N = scene.size.z;
+  uint max_depth = scene.size.w;
+
+  vec3 L_surf = vec3(0.0f), L_vol = vec3(0.0f);
+  float T_surf = 1.0f;
+
+  // Distance sampling on the camera ray: q(t) = p_base q_base(t) + p_ea q_ea(t).
+  float tau_total = maj_walk(cam_o, cam_d, 0.0f, t_s, T_INF).tau;
+  float p_base = tau_total > 0.0f ? 1.0f : 0.0f;
+  float p_ea = 0.0f;
+#if HAZE_LOCAL
+  uint K = scene.counts.z;
+  if (K > 0u && t_s > 0.0f) {
+    p_ea = tau_total > 0.0f ? scene.settings.x : 1.0f;
+    p_base = 1.0f - p_ea;
+  }
+#endif
+
+  // Path state.
+  int state = ST_SURFACE;
+  vec3 q_o = cam_o, q_d = cam_d;
+  float q_t0 = 0.0f, q_t1 = t_s;
+  int q_mode = TRACK_RATIO;
+  bool q_eval = false;
+  uint j = 0u;           // volume sample index
+  uint depth = 0u;       // scattering events so far
+  vec3 x = cam_o;        // current vertex
+  vec3 d = cam_d;        // direction the path travelled to reach x
+  vec3 beta = vec3(0.0f);
+  vec3 pending = vec3(0.0f);
+  float g = 0.0f;
+
+  for (;;) {
+    TrackResult r = track(q_o, q_d, q_t0, q_t1, q_mode, q_eval, rng);
+    bool next_sample = false;  // start the next volume sample
+    bool do_nee = false;       // a scattering vertex is ready at x
+
+    if (state == ST_SURFACE) {
+      T_surf = r.T;
+      L_surf = r.T * background(cam_d);
+      next_sample = true;
+    } else if (state == ST_CAMERA) {
+      // r.T = T(0,t_j) estimate; the camera-ray contribution is T sigma (...) / q(t_j), averaged over N.
+      float w = r.T * r.ms.sigma_t / (pending.x * float(N));
+      L_vol += w * r.ms.emit;
+      if (max_depth > 0u && w > 0.0f) {
+        beta = vec3(w) * r.ms.albedo;
+        g = r.ms.g;
+        depth = 1u;
+        do_nee = true;
+      } else {
+        next_sample = true;
+      }
+    } else if (state == ST_SHADOW) {
+      L_vol += pending * r.T;
+#if HAZE_MULTI
+      if (depth < max_depth) {
+        d = hg_sample(d, g, vec2(rng_next(rng), rng_next(rng)));
+        q_o = x;
+        q_d = d;
+        q_t0 = 0.0f;
+        q_t1 = media_exit(x, d);
+        q_mode = TRACK_DELTA;
+        q_eval = false;
+        state = ST_WALK;
+        continue;
+      }
+#endif
+      next_sample = true;
+    } else {  // ST_WALK
+      if (r.hit) {
+        x = x + d * r.t;
+        L_vol += beta * r.ms.emit;
+        beta *= r.ms.albedo;
+        g = r.ms.g;
+        depth += 1u;
+        float m = max(beta.x, max(beta.y, beta.z));
+        if (m < 0.25f) {
+          if (rng_next(rng) * 0.25f >= m) {
+            next_sample = true;
+          } else {
+            beta *= 0.25f / m;
+            do_nee = true;
+          }
+        } else {
+          do_nee = true;
+        }
+      } else {
+        next_sample = true;
+      }
+    }
+
+    if (do_nee) {
+#if HAZE_LIGHTS
+      LightSample ls = sample_light(x, vec3(rng_next(rng), rng_next(rng), rng_next(rng)));
+      pending = beta * hg_phase(dot(ls.wi, d), g) * ls.Li;
+      q_o = x;
+      q_d = ls.wi;
+      q_t0 = 0.0f;
+      q_t1 = min(ls.dist, media_exit(x, ls.wi));
+      q_mode = TRACK_RATIO;
+      q_eval = false;
+      state = ST_SHADOW;
+      continue;
+#else
+      // No lights: in-scattered light comes only from emission reached by the walk.
+      pending = vec3(0.0f);
+      q_t1 = 0.0f;
+      state = ST_SHADOW;
+      continue;
+#endif
+    }
+
+    if (next_sample) {
+      if (j >= N || (p_base + p_ea) == 0.0f) break;
+      j += 1u;
+      // Draw t_j from the mixture and evaluate q(t_j).
+      float t;
+      MajWalk mw;
+      float u_pick = rng_next(rng);
+      float u_t = rng_next(rng);
+      if (u_pick < p_base) {
+        mw = maj_walk(cam_o, cam_d, 0.0f, t_s, truncated_exp_sample_tau(tau_total, u_t));
+        t = mw.t;
+      } else {
+#if HAZE_LOCAL
+        uint k = min(uint((u_pick - p_base) / p_ea * float(K)), K - 1u);
+        t = equi_angular_sample(equi_angular_setup(cam_o, cam_d, lights[k].position.xyz, 0.0f, t_s), u_t);
+#else
+        t = 0.0f;
+#endif
+        t = clamp(t, 0.0f, t_s);
+        mw = maj_walk(cam_o, cam_d, 0.0f, t, T_INF);
+      }
+      float q = p_base > 0.0f ? p_base * mw.sigma * truncated_exp_pdf_tau(mw.tau, tau_total) : 0.0f;
+#if HAZE_LOCAL
+      for (uint k = 0u; k < K; ++k)
+        q += p_ea / float(K) * equi_angular_pdf(equi_angular_setup(cam_o, cam_d, lights[k].position.xyz, 0.0f, t_s), t);
+#endif
+      if (!(q > 0.0f)) {
+        // A sample the mixture cannot produce again contributes nothing.
+        q = T_INF;
+      }
+      pending = vec3(q);
+      x = cam_o + cam_d * t;
+      d = cam_d;
+      q_o = cam_o;
+      q_d = cam_d;
+      q_t0 = 0.0f;
+      q_t1 = t;
+      q_mode = TRACK_RATIO;
+      q_eval = true;
+      state = ST_CAMERA;
+    }
+  }
+
+  vec3 L = L_surf + L_vol;
+  // Non-finite values never enter the sums (extreme inputs are clamped, not propagated).
+  if (any(isnan(L)) || any(isinf(L))) {
+    L = vec3(0.0f);
+    L_vol = vec3(0.0f);
+    L_surf = vec3(0.0f);
+  }
+  uint base = pixel * ACC_STRIDE;
+  for (int c = 0; c < 3; ++c) {
+    accum[base + ACC_L + c] += L[c];
+    accum[base + ACC_VOL + c] += L_vol[c];
+    accum[base + ACC_SURF + c] += L_surf[c];
+    accum[base + ACC_L2 + c] += L[c] * L[c];
+    accum[base + ACC_VOL2 + c] += L_vol[c] * L_vol[c];
+    accum[base + ACC_SURF2 + c] += L_surf[c] * L_surf[c];
+  }
+  accum[base + ACC_T] += T_surf;
+  accum[base + ACC_T2] += T_surf * T_surf;
+  accum[base + ACC_DEPTH] += t_s < T_INF * 0.5f ? t_s : 0.0f;
+}

@@ -1,0 +1,184 @@
+// The haze command as a user runs it: outputs, determinism, and bad input (one-line error naming the file
+// or key, non-zero exit, nothing already written lost).
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+
+#include <array>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "render/output.hpp"
+
+namespace {
+
+namespace fs = std::filesystem;
+
+struct Result {
+  int code;
+  std::string out;
+};
+
+Result run(const std::string& args) {
+  std::string cmd = fmt::format("{} {} 2>&1", HAZE_BIN, args);
+  FILE* p = popen(cmd.c_str(), "r");
+  std::string out;
+  std::array<char, 4096> buf{};
+  while (size_t n = fread(buf.data(), 1, buf.size(), p)) out.append(buf.data(), n);
+  int status = pclose(p);
+  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, out};
+}
+
+class Cli : public ::testing::Test {
+ protected:
+  fs::path dir;
+  void SetUp() override {
+    dir = fs::temp_directory_path() /
+          fmt::format("haze-cli-{}-{}", ::testing::UnitTest::GetInstance()->current_test_info()->name(), getpid());
+    fs::remove_all(dir);
+    fs::create_directories(dir);
+  }
+  void TearDown() override { fs::remove_all(dir); }
+  std::string write(const std::string& name, const std::string& text) {
+    fs::path p = dir / name;
+    std::ofstream(p) << text;
+    return p.string();
+  }
+  // A quick scene: homogeneous haze and a sun (no PNanoVDB in the shader variant).
+  std::string small_scene(const std::string& extra_render = "") {
+    return write("scene.json", fmt::format(R"({{
+      "camera": {{"position": [0, 1, 5], "target": [0, 1, 0]}},
+      "haze": {{"sigma_t": 0.3, "bounded": true, "bounds_min": [-2, -2, -2], "bounds_max": [2, 2, 2]}},
+      "lights": {{"sun": {{"direction": [0.3, 1, 0.2]}}}},
+      "render": {{"width": 24, "height": 16, "spp": 4 {}}}
+    }})",
+                                           extra_render));
+  }
+};
+
+void expect_one_line_error(const Result& r, const std::string& needle) {
+  EXPECT_NE(r.code, 0) << r.out;
+  EXPECT_NE(r.out.find(needle), std::string::npos) << "expected '" << needle << "' in: " << r.out;
+  EXPECT_NE(r.out.find("haze: error: "), std::string::npos) << r.out;
+  // The error itself is one line.
+  auto pos = r.out.find("haze: error: ");
+  if (pos != std::string::npos) {
+    std::string rest = r.out.substr(pos);
+    EXPECT_EQ(rest.find('\n'), rest.size() - 1) << r.out;
+  }
+}
+
+TEST_F(Cli, RenderWritesLayersPreviewAndStats) {
+  auto r = run(fmt::format("render {} --out {}", small_scene(), (dir / "out").string()));
+  ASSERT_EQ(r.code, 0) << r.out;
+  auto img = haze::render::read_exr((dir / "out/frame_0000.exr").string());
+  EXPECT_EQ(img.width, 24);
+  EXPECT_EQ(img.height, 16);
+  for (const char* c : {"R", "G", "B", "volume.R", "surface.R", "transmittance.Y", "depth.Z", "variance.R"})
+    EXPECT_NO_THROW(img.channel(c)) << c;
+  double sum = 0;
+  for (float v : img.channel("volume.R")) {
+    ASSERT_TRUE(std::isfinite(v));
+    sum += v;
+  }
+  EXPECT_GT(sum, 0.0);  // the sunlit haze scatters
+  EXPECT_TRUE(fs::exists(dir / "out/frame_0000.png"));
+  auto st = nlohmann::json::parse(std::ifstream(dir / "out/stats.json"));
+  EXPECT_TRUE(st["passes"].contains("trace"));
+  EXPECT_GT(st["memory"]["total"].get<uint64_t>(), 0u);
+  EXPECT_EQ(st["features"], "haze+sun");
+  EXPECT_FALSE(st["device"]["name"].get<std::string>().empty());
+  // No buffer for features the scene does not use.
+  for (const auto& e : st["memory"]["entries"]) {
+    EXPECT_NE(e["name"], "nanovdb grids");
+    EXPECT_NE(e["name"], "majorant grid");
+  }
+}
+
+TEST_F(Cli, SameSeedSameImageOtherSeedOtherImage) {
+  std::string scene = small_scene();
+  auto a = run(fmt::format("render {} --out {}", scene, (dir / "a").string()));
+  auto b = run(fmt::format("render {} --out {}", scene, (dir / "b").string()));
+  auto c = run(fmt::format("render {} --out {} --set render.seed=2", scene, (dir / "c").string()));
+  ASSERT_EQ(a.code, 0) << a.out;
+  ASSERT_EQ(b.code, 0) << b.out;
+  ASSERT_EQ(c.code, 0) << c.out;
+  auto ia = haze::render::read_exr((dir / "a/frame_0000.exr").string());
+  auto ib = haze::render::read_exr((dir / "b/frame_0000.exr").string());
+  auto ic = haze::render::read_exr((dir / "c/frame_0000.exr").string());
+  EXPECT_EQ(ia.channel("R"), ib.channel("R"));
+  EXPECT_NE(ia.channel("R"), ic.channel("R"));
+}
+
+TEST_F(Cli, MissingSceneFile) {
+  expect_one_line_error(run(fmt::format("render {}/nope.json --out {}", dir.string(), dir.string())), "nope.json");
+}
+
+TEST_F(Cli, MalformedJson) {
+  expect_one_line_error(run(fmt::format("render {} --out {}", write("bad.json", "{ \"camera\": "), dir.string())),
+                        "bad.json");
+}
+
+TEST_F(Cli, UnknownKeyIsNamed) {
+  std::string s = write("s.json", R"({"render": {"sppp": 4}})");
+  expect_one_line_error(run(fmt::format("render {} --out {}", s, dir.string())), "render.sppp");
+}
+
+TEST_F(Cli, NegativeDensityScale) {
+  std::string s = write("s.json", R"({"media": [{"procedural": {"kind": "box"}, "density_scale": -1}]})");
+  expect_one_line_error(run(fmt::format("render {} --out {}", s, dir.string())), "density_scale");
+}
+
+TEST_F(Cli, ZeroSizeImage) {
+  expect_one_line_error(run(fmt::format("render {} --out {} --size 0x16", small_scene(), dir.string())),
+                        "render.width");
+}
+
+TEST_F(Cli, UnknownSetPath) {
+  expect_one_line_error(run(fmt::format("render {} --out {} --set render.nope=1", small_scene(), dir.string())),
+                        "render.nope");
+}
+
+TEST_F(Cli, MissingAndInvalidVdbFiles) {
+  std::string s = write("s.json", R"({"media": [{"file": "missing.vdb"}]})");
+  expect_one_line_error(run(fmt::format("render {} --out {}", s, (dir / "o").string())), "missing.vdb");
+  write("garbage.vdb", "this is not a vdb file");
+  std::string g = write("g.json", R"({"media": [{"file": "garbage.vdb"}]})");
+  expect_one_line_error(run(fmt::format("render {} --out {}", g, (dir / "o").string())), "garbage.vdb");
+  expect_one_line_error(run(fmt::format("vdb info {}", (dir / "garbage.vdb").string())), "garbage.vdb");
+}
+
+TEST_F(Cli, UnwritableOutputDirectory) {
+  expect_one_line_error(run(fmt::format("render {} --out /proc/haze-out", small_scene())), "/proc/haze-out");
+}
+
+TEST_F(Cli, FailedRunLeavesExistingOutputsIntact) {
+  fs::create_directories(dir / "out");
+  write("out/frame_0000.exr", "precious");
+  std::string s = write("s.json", R"({"render": {"spp": -3}})");
+  auto r = run(fmt::format("render {} --out {}", s, (dir / "out").string()));
+  EXPECT_NE(r.code, 0);
+  std::stringstream ss;
+  ss << std::ifstream(dir / "out/frame_0000.exr").rdbuf();
+  EXPECT_EQ(ss.str(), "precious");
+  // And nothing temporary is left behind.
+  for (const auto& e : fs::directory_iterator(dir / "out")) EXPECT_EQ(e.path().filename(), "frame_0000.exr");
+}
+
+TEST_F(Cli, VdbMakeAndInfo) {
+  std::string f = (dir / "cloud.vdb").string();
+  auto m = run(fmt::format("vdb make cloud --out {} --voxel-size 0.1 --size 2 2 2 --seed 4", f));
+  ASSERT_EQ(m.code, 0) << m.out;
+  auto i = run(fmt::format("vdb info {} --json", f));
+  ASSERT_EQ(i.code, 0) << i.out;
+  auto j = nlohmann::json::parse(i.out);
+  ASSERT_FALSE(j.empty());
+  std::string dump = j.dump();
+  EXPECT_NE(dump.find("density"), std::string::npos);
+  expect_one_line_error(run(fmt::format("vdb make blob --out {}", f)), "blob");
+}
+
+}  // namespace

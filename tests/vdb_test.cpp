@@ -1,0 +1,519 @@
+// Tests for haze::vdb: procedural volumes round-tripped through .vdb files, error messages for bad inputs,
+// transforms, NaN handling, and the majorant grid's conservativeness under rotation and scale.
+#include "vdb/vdb.h"
+
+#include <gtest/gtest.h>
+#include <openvdb/io/File.h>
+#include <openvdb/openvdb.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <glm/gtc/matrix_transform.hpp>
+#include <random>
+
+namespace fs = std::filesystem;
+using namespace haze::vdb;
+
+namespace {
+
+class VdbTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() { openvdb::initialize(); }
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("haze_vdb_test_" + std::to_string(::getpid()) + "_" +
+                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+  std::string path(const std::string& name) const { return (dir_ / name).string(); }
+
+  void write(const std::string& file, openvdb::GridPtrVec grids) {
+    openvdb::io::File f(file);
+    f.write(grids);
+    f.close();
+  }
+
+  fs::path dir_;
+};
+
+// Expects `f` to throw haze::vdb::Error whose one-line message contains every needle.
+template <typename F>
+void expect_error(F&& f, std::vector<std::string> needles) {
+  try {
+    f();
+    ADD_FAILURE() << "no haze::vdb::Error thrown";
+  } catch (const Error& e) {
+    std::string msg = e.what();
+    EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
+    for (const auto& n : needles)
+      EXPECT_NE(msg.find(n), std::string::npos) << "'" << n << "' not in: " << msg;
+  }
+}
+
+glm::dvec3 to_index(const Sampler& s, glm::dvec3 world) {
+  return glm::dvec3(s.world_to_index * glm::dvec4(world, 1.0));
+}
+
+GridInfo only_grid(const std::vector<GridInfo>& infos) {
+  EXPECT_EQ(infos.size(), 1u);
+  return infos.at(0);
+}
+
+}  // namespace
+
+TEST_F(VdbTest, BoxRoundTrip) {
+  ProceduralSpec s;
+  s.kind = "box";
+  s.voxel_size = 0.05;
+  s.center = {0.3, -0.2, 0.1};
+  s.size = {1.0, 0.6, 0.8};
+  s.density = 2.5;
+  write_procedural(s, path("box.vdb"));
+  EXPECT_FALSE(fs::exists(path("box.vdb") + ".tmp" + std::to_string(::getpid())));
+
+  GridInfo g = only_grid(inspect(path("box.vdb")));
+  EXPECT_EQ(g.name, "density");
+  EXPECT_EQ(g.type, "float");
+  EXPECT_EQ(g.grid_class, "fog volume");
+  EXPECT_NEAR(g.voxel_size.x, 0.05, 1e-12);
+  EXPECT_NEAR(g.voxel_size.z, 0.05, 1e-12);
+  // Voxel centres inside [center - size/2, center + size/2].
+  glm::ivec3 lo(glm::ceil((s.center - s.size * 0.5) / s.voxel_size - 1e-9));
+  glm::ivec3 hi(glm::floor((s.center + s.size * 0.5) / s.voxel_size + 1e-9));
+  EXPECT_EQ(g.index_min, lo);
+  EXPECT_EQ(g.index_max, hi);
+  glm::ivec3 n = hi - lo + 1;
+  EXPECT_EQ(g.active_voxels, uint64_t(n.x) * n.y * n.z);
+  EXPECT_NEAR(g.world_min.x, lo.x * 0.05, 1e-9);
+  EXPECT_NEAR(g.world_max.y, hi.y * 0.05, 1e-9);
+  EXPECT_DOUBLE_EQ(g.value_min, 2.5);
+  EXPECT_DOUBLE_EQ(g.value_max, 2.5);
+  EXPECT_GT(g.memory_bytes, 0u);
+
+  nlohmann::json j = to_json(inspect(path("box.vdb")));
+  ASSERT_TRUE(j.is_array());
+  EXPECT_EQ(j[0]["name"], "density");
+  EXPECT_EQ(j[0]["type"], "float");
+  EXPECT_EQ(j[0]["index_min"][0], lo.x);
+
+  DeviceGrid d = load_grid(path("box.vdb"), "density");
+  EXPECT_EQ(d.name, "density");
+  EXPECT_EQ(d.index_min, lo);
+  EXPECT_EQ(d.index_max, hi);
+  EXPECT_EQ(d.nanovdb.size() % 32, 0u);
+  EXPECT_FLOAT_EQ(d.value_min, 2.5f);
+  EXPECT_FLOAT_EQ(d.value_max, 2.5f);
+  EXPECT_EQ(d.nan_voxels, 0u);
+  Sampler smp(d);
+  EXPECT_FLOAT_EQ(smp.trilinear(to_index(smp, s.center)), 2.5f);
+  EXPECT_FLOAT_EQ(smp.trilinear(to_index(smp, s.center + glm::dvec3(0.4, 0.2, -0.3))), 2.5f);
+  EXPECT_FLOAT_EQ(smp.trilinear(to_index(smp, s.center + glm::dvec3(0.5 + 0.1, 0, 0))), 0.f);
+  EXPECT_FLOAT_EQ(smp.trilinear(to_index(smp, glm::dvec3(50, 50, 50))), 0.f);  // background outside the tree
+  EXPECT_FLOAT_EQ(sample_index_trilinear(d, to_index(smp, s.center)), 2.5f);
+  // Halfway between the last inside voxel centre and the first outside one.
+  EXPECT_NEAR(smp.trilinear(glm::dvec3(hi.x + 0.5, lo.y + 2, lo.z + 2)), 1.25f, 1e-6);
+
+  // make_procedural gives the same grid without a file.
+  DeviceGrid m = make_procedural(s);
+  EXPECT_EQ(m.index_min, lo);
+  EXPECT_EQ(m.nanovdb.size(), d.nanovdb.size());
+}
+
+TEST_F(VdbTest, SphereRoundTrip) {
+  ProceduralSpec s;
+  s.kind = "sphere";
+  s.voxel_size = 0.025;
+  s.center = {0.1, 0.2, -0.3};
+  s.size = glm::dvec3(1.0);  // radius 0.5
+  s.density = 3.0;
+  write_procedural(s, path("sphere.vdb"));
+  GridInfo g = only_grid(inspect(path("sphere.vdb")));
+  EXPECT_EQ(g.name, "density");
+  EXPECT_EQ(g.type, "float");
+  EXPECT_EQ(g.grid_class, "fog volume");
+  EXPECT_NEAR(g.value_max, 3.0, 1e-6);
+  EXPECT_GT(g.value_min, 0.0);
+  for (int a = 0; a < 3; ++a) {
+    EXPECT_NEAR(g.world_min[a], s.center[a] - 0.5, 1.5 * s.voxel_size);
+    EXPECT_NEAR(g.world_max[a], s.center[a] + 0.5, 1.5 * s.voxel_size);
+  }
+  DeviceGrid d = load_grid(path("sphere.vdb"), "density");
+  Sampler smp(d);
+  EXPECT_NEAR(smp.trilinear(to_index(smp, s.center)), 3.0f, 1e-5);
+  EXPECT_NEAR(smp.trilinear(to_index(smp, s.center + glm::dvec3(0.25, 0, 0))), 3.0f, 1e-5);
+  EXPECT_NEAR(smp.trilinear(to_index(smp, s.center + glm::dvec3(0, -0.15, 0.15))), 3.0f, 1e-5);
+  EXPECT_EQ(smp.trilinear(to_index(smp, s.center + glm::dvec3(0, 0.6, 0))), 0.f);
+  EXPECT_EQ(smp.trilinear(to_index(smp, s.center + glm::dvec3(0.4, 0.4, 0))), 0.f);
+  // Inside the surface ramp: between 0 and the density.
+  float edge = smp.trilinear(to_index(smp, s.center + glm::dvec3(0.5 - 1.5 * s.voxel_size, 0, 0)));
+  EXPECT_GT(edge, 0.f);
+  EXPECT_LT(edge, 3.f);
+}
+
+TEST_F(VdbTest, CloudRoundTrip) {
+  ProceduralSpec s;
+  s.kind = "cloud";
+  s.voxel_size = 0.04;
+  s.center = {-0.5, 0.25, 0.0};
+  s.size = glm::dvec3(1.2);
+  s.density = 4.0;
+  s.falloff = 0.3;
+  s.frequency = 3.0;
+  s.seed = 7;
+  write_procedural(s, path("cloud.vdb"));
+  GridInfo g = only_grid(inspect(path("cloud.vdb")));
+  EXPECT_EQ(g.name, "density");
+  EXPECT_EQ(g.type, "float");
+  EXPECT_LE(g.value_max, 4.0 + 1e-6);
+  EXPECT_NEAR(g.value_max, 4.0, 1e-6);  // the dense core reaches the peak
+  EXPECT_GT(g.value_min, 0.0);
+  double reach = 0.6 * 1.3 + s.voxel_size;
+  for (int a = 0; a < 3; ++a) {
+    EXPECT_GE(g.world_min[a], s.center[a] - reach);
+    EXPECT_LE(g.world_max[a], s.center[a] + reach);
+  }
+  DeviceGrid d = load_grid(path("cloud.vdb"), "density");
+  Sampler smp(d);
+  EXPECT_NEAR(smp.trilinear(to_index(smp, s.center)), 4.0f, 1e-5);
+  EXPECT_EQ(smp.trilinear(to_index(smp, s.center + glm::dvec3(reach + 0.05, 0, 0))), 0.f);
+  // At voxel centres the grid holds the analytic field.
+  std::mt19937 rng(3);
+  std::uniform_int_distribution<int> u(-20, 20);
+  int nonzero = 0;
+  for (int i = 0; i < 300; ++i) {
+    glm::ivec3 c = glm::ivec3(glm::round(s.center / s.voxel_size)) + glm::ivec3(u(rng), u(rng), u(rng));
+    double want = procedural_value(s, glm::dvec3(c) * s.voxel_size);
+    EXPECT_NEAR(smp.voxel(c), want, 1e-5 * s.density) << c.x << " " << c.y << " " << c.z;
+    EXPECT_NEAR(smp.trilinear(glm::dvec3(c)), want, 1e-5 * s.density);
+    nonzero += want > 0 && want < s.density;
+  }
+  EXPECT_GT(nonzero, 10);  // the noisy edge is sampled, not only the core
+  // Same seed, same cloud; another seed, another cloud.
+  ProceduralSpec s2 = s;
+  s2.seed = 8;
+  DeviceGrid a = make_procedural(s), b = make_procedural(s2);
+  EXPECT_EQ(a.nanovdb, d.nanovdb);
+  EXPECT_NE(a.nanovdb, b.nanovdb);
+}
+
+TEST_F(VdbTest, HeightFogRoundTrip) {
+  ProceduralSpec s;
+  s.kind = "height_fog";
+  s.voxel_size = 0.05;
+  s.center = {0, 1.0, 0};
+  s.size = {1.0, 1.0, 0.5};
+  s.density = 2.0;
+  s.falloff = 0.25;
+  write_procedural(s, path("fog.vdb"));
+  GridInfo g = only_grid(inspect(path("fog.vdb")));
+  EXPECT_EQ(g.type, "float");
+  EXPECT_EQ(g.index_min.y, 10);  // base y = 0.5
+  EXPECT_EQ(g.index_max.y, 30);
+  EXPECT_NEAR(g.value_max, 2.0, 1e-6);
+  EXPECT_NEAR(g.value_min, 2.0 * std::exp(-1.0 / 0.25), 1e-6);
+  DeviceGrid d = load_grid(path("fog.vdb"), "density");
+  Sampler smp(d);
+  for (int j = 10; j <= 30; j += 5) {
+    double y = j * 0.05;
+    EXPECT_NEAR(smp.trilinear(glm::dvec3(0, j, 0)), 2.0 * std::exp(-(y - 0.5) / 0.25), 1e-5) << j;
+    EXPECT_NEAR(smp.trilinear(to_index(smp, {0.2, y, -0.1})), procedural_value(s, {0.2, y, -0.1}), 1e-5);
+  }
+  EXPECT_EQ(smp.trilinear(to_index(smp, {0, 0.3, 0})), 0.f);
+  EXPECT_EQ(smp.trilinear(to_index(smp, {0.7, 1.0, 0})), 0.f);
+}
+
+TEST_F(VdbTest, HalfGridLoadsAsFloat) {
+  auto grid = openvdb::FloatGrid::create(0.f);
+  grid->setName("density");
+  grid->setSaveFloatAsHalf(true);
+  grid->tree().setValue(openvdb::Coord(1, 2, 3), 0.1f);
+  grid->tree().setValue(openvdb::Coord(2, 2, 3), 1000.3f);
+  write(path("half.vdb"), {grid});
+  GridInfo g = only_grid(inspect(path("half.vdb")));
+  EXPECT_EQ(g.type, "half");
+  DeviceGrid d = load_grid(path("half.vdb"), "density");
+  Sampler smp(d);
+  EXPECT_EQ(smp.voxel({1, 2, 3}), float(openvdb::math::half(0.1f)));
+  EXPECT_NE(smp.voxel({1, 2, 3}), 0.1f);
+  EXPECT_NEAR(smp.voxel({2, 2, 3}), 1000.3f, 0.5f);
+  EXPECT_EQ(d.index_min, glm::ivec3(1, 2, 3));
+  EXPECT_EQ(d.index_max, glm::ivec3(2, 2, 3));
+}
+
+TEST_F(VdbTest, VectorGridIsRejected) {
+  auto vel = openvdb::Vec3SGrid::create();
+  vel->setName("vel");
+  vel->tree().setValue(openvdb::Coord(0, 0, 0), openvdb::Vec3s(1, 2, 3));
+  write(path("vel.vdb"), {vel});
+  GridInfo g = only_grid(inspect(path("vel.vdb")));
+  EXPECT_EQ(g.type, "vec3s");
+  EXPECT_EQ(g.active_voxels, 1u);
+  expect_error([&] { load_grid(path("vel.vdb"), "vel"); }, {path("vel.vdb"), "'vel'", "vec3s", "float"});
+}
+
+TEST_F(VdbTest, MissingGridListsNames) {
+  auto a = openvdb::FloatGrid::create(0.f);
+  a->setName("density");
+  a->tree().setValue(openvdb::Coord(0), 1.f);
+  auto b = openvdb::FloatGrid::create(0.f);
+  b->setName("temperature");
+  b->tree().setValue(openvdb::Coord(0), 1.f);
+  write(path("two.vdb"), {a, b});
+  auto infos = inspect(path("two.vdb"));
+  ASSERT_EQ(infos.size(), 2u);
+  EXPECT_EQ(infos[0].name, "density");
+  EXPECT_EQ(infos[1].name, "temperature");
+  EXPECT_NO_THROW(load_grid(path("two.vdb"), "temperature"));
+  expect_error([&] { load_grid(path("two.vdb"), "smoke"); },
+               {path("two.vdb"), "'smoke'", "density", "temperature"});
+}
+
+TEST_F(VdbTest, BadFiles) {
+  {
+    std::ofstream f(path("garbage.vdb"), std::ios::binary);
+    for (int i = 0; i < 4096; ++i) f.put(char(i * 131 + 7));
+  }
+  expect_error([&] { load_grid(path("garbage.vdb"), "density"); }, {path("garbage.vdb"), "VDB"});
+  expect_error([&] { inspect(path("garbage.vdb")); }, {path("garbage.vdb")});
+  expect_error([&] { load_grid(path("nope.vdb"), "density"); }, {path("nope.vdb"), "not found"});
+  expect_error([&] { inspect(path("nope.vdb")); }, {path("nope.vdb"), "not found"});
+  std::ofstream(path("empty.vdb")).close();
+  expect_error([&] { load_grid(path("empty.vdb"), "density"); }, {path("empty.vdb")});
+
+  // A valid file cut short.
+  ProceduralSpec s;
+  write_procedural(s, path("whole.vdb"));
+  {
+    std::ifstream in(path("whole.vdb"), std::ios::binary);
+    std::string bytes((std::istreambuf_iterator<char>(in)), {});
+    std::ofstream out(path("cut.vdb"), std::ios::binary);
+    out.write(bytes.data(), std::streamsize(bytes.size() / 2));
+  }
+  expect_error([&] { load_grid(path("cut.vdb"), "density"); }, {path("cut.vdb")});
+}
+
+TEST_F(VdbTest, EmptyGridIsRejected) {
+  auto a = openvdb::FloatGrid::create(0.f);
+  a->setName("density");
+  write(path("empty_grid.vdb"), {a});
+  GridInfo g = only_grid(inspect(path("empty_grid.vdb")));
+  EXPECT_EQ(g.active_voxels, 0u);
+  expect_error([&] { load_grid(path("empty_grid.vdb"), "density"); }, {path("empty_grid.vdb"), "empty"});
+}
+
+TEST_F(VdbTest, NanVoxels) {
+  auto a = openvdb::FloatGrid::create(0.f);
+  a->setName("density");
+  a->tree().setValue(openvdb::Coord(0, 0, 0), 1.f);
+  a->tree().setValue(openvdb::Coord(1, 0, 0), std::numeric_limits<float>::quiet_NaN());
+  a->tree().setValue(openvdb::Coord(2, 0, 0), std::numeric_limits<float>::infinity());
+  a->tree().setValue(openvdb::Coord(3, 0, 0), 2.f);
+  write(path("nan.vdb"), {a});
+  DeviceGrid d = load_grid(path("nan.vdb"), "density");
+  EXPECT_EQ(d.nan_voxels, 2u);
+  Sampler smp(d);
+  EXPECT_EQ(smp.voxel({1, 0, 0}), 0.f);
+  EXPECT_EQ(smp.voxel({2, 0, 0}), 0.f);
+  EXPECT_EQ(smp.voxel({3, 0, 0}), 2.f);
+  EXPECT_FLOAT_EQ(smp.trilinear({0.5, 0, 0}), 0.5f);
+  EXPECT_EQ(d.value_max, 2.f);
+  EXPECT_EQ(d.value_min, 0.f);
+  expect_error([&] { load_grid(path("nan.vdb"), "density", NanPolicy::Error); },
+               {path("nan.vdb"), "NaN", "2"});
+}
+
+TEST_F(VdbTest, TransformHonoured) {
+  auto a = openvdb::FloatGrid::create(0.f);
+  a->setName("density");
+  auto xf = openvdb::math::Transform::createLinearTransform(0.1);
+  xf->postTranslate(openvdb::Vec3d(1, 2, 3));
+  a->setTransform(xf);
+  a->tree().setValue(openvdb::Coord(0, 0, 0), 1.f);
+  a->tree().setValue(openvdb::Coord(10, -5, 20), 2.f);
+  write(path("xf.vdb"), {a});
+  GridInfo g = only_grid(inspect(path("xf.vdb")));
+  EXPECT_NEAR(g.voxel_size.y, 0.1, 1e-12);
+  EXPECT_EQ(g.index_min, glm::ivec3(0, -5, 0));
+  EXPECT_EQ(g.index_max, glm::ivec3(10, 0, 20));
+  EXPECT_NEAR(g.world_min.x, 1.0, 1e-9);
+  EXPECT_NEAR(g.world_min.y, 1.5, 1e-9);
+  EXPECT_NEAR(g.world_max.z, 5.0, 1e-9);
+  DeviceGrid d = load_grid(path("xf.vdb"), "density");
+  glm::dvec4 w = d.index_to_world * glm::dvec4(10, -5, 20, 1);
+  EXPECT_NEAR(w.x, 2.0, 1e-12);
+  EXPECT_NEAR(w.y, 1.5, 1e-12);
+  EXPECT_NEAR(w.z, 5.0, 1e-12);
+  EXPECT_NEAR(w.w, 1.0, 1e-12);
+  Sampler smp(d);
+  EXPECT_FLOAT_EQ(smp.trilinear(to_index(smp, {2.0, 1.5, 5.0})), 2.f);
+  EXPECT_FLOAT_EQ(smp.trilinear(to_index(smp, {1.0, 2.0, 3.0})), 1.f);
+  EXPECT_FLOAT_EQ(smp.trilinear(to_index(smp, {1.05, 2.0, 3.0})), 0.5f);
+
+  // A rotated, non-uniformly scaled affine map comes through unchanged.
+  auto b = openvdb::FloatGrid::create(0.f);
+  b->setName("density");
+  auto xr = openvdb::math::Transform::createLinearTransform(0.2);
+  xr->postScale(openvdb::Vec3d(1, 2, 0.5));
+  xr->postRotate(0.7, openvdb::math::Z_AXIS);
+  xr->postTranslate(openvdb::Vec3d(-1, 0.5, 4));
+  b->setTransform(xr);
+  b->tree().setValue(openvdb::Coord(3, 4, 5), 1.f);
+  write(path("rot.vdb"), {b});
+  DeviceGrid r = load_grid(path("rot.vdb"), "density");
+  openvdb::Vec3d want = xr->indexToWorld(openvdb::Vec3d(3, 4, 5));
+  glm::dvec4 got = r.index_to_world * glm::dvec4(3, 4, 5, 1);
+  for (int k = 0; k < 3; ++k) EXPECT_NEAR(got[k], want[k], 1e-12);
+}
+
+TEST_F(VdbTest, ProceduralJson) {
+  ProceduralSpec s = procedural_from_json({{"kind", "cloud"},
+                                           {"voxel_size", 0.1},
+                                           {"center", {1, 2, 3}},
+                                           {"size", 3},
+                                           {"seed", 9},
+                                           {"octaves", 2}},
+                                          "scene.json: media[0]");
+  EXPECT_EQ(s.kind, "cloud");
+  EXPECT_EQ(s.center, glm::dvec3(1, 2, 3));
+  EXPECT_EQ(s.size, glm::dvec3(3));
+  EXPECT_EQ(s.seed, 9u);
+  EXPECT_EQ(s.octaves, 2);
+  ProceduralSpec t = procedural_from_json(to_json(s), "x");
+  EXPECT_EQ(to_json(t), to_json(s));
+  expect_error(
+      [] {
+        procedural_from_json({{"kind", "box"}, {"colour", 1}}, "scene.json: media[0]");
+      },
+      {"scene.json: media[0]", "'colour'"});
+  expect_error([] { procedural_from_json({{"kind", "torus"}}, "m"); }, {"'kind'", "torus"});
+  expect_error([] { procedural_from_json({{"voxel_size", -1}}, "m"); }, {"'voxel_size'"});
+  expect_error([] { procedural_from_json({{"voxel_size", "big"}}, "m"); }, {"'voxel_size'"});
+  expect_error([] { procedural_from_json({{"center", {1, 2}}}, "m"); }, {"'center'"});
+  expect_error([] { procedural_from_json({{"kind", "cloud"}, {"falloff", 2}}, "m"); }, {"'falloff'"});
+  expect_error([] { procedural_from_json({{"kind", "height_fog"}, {"falloff", 0}}, "m"); }, {"'falloff'"});
+  expect_error([] { procedural_from_json({{"density", -1}}, "m"); }, {"'density'"});
+  expect_error([] { procedural_from_json({{"voxel_size", 1e-4}}, "m"); }, {"'voxel_size'", "voxels"});
+  expect_error([] { procedural_from_json(nlohmann::json::array(), "m"); }, {"m:"});
+}
+
+namespace {
+
+struct Medium {
+  DeviceGrid grid;
+  glm::dmat4 o2w;
+  double scale;
+};
+
+// sum over media of scale * trilinear density at world point p, against the majorant cell containing p.
+void check_conservative(const std::vector<Medium>& media, const MajorantGrid& maj, int n_points,
+                        uint32_t seed, double* tightest = nullptr) {
+  std::vector<Sampler> samplers;
+  std::vector<glm::dmat4> w2i;
+  for (const auto& m : media) {
+    samplers.emplace_back(m.grid);
+    w2i.push_back(glm::inverse(m.o2w * m.grid.index_to_world));
+  }
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(0, 1);
+  glm::dvec3 lo(maj.world_min), ext = glm::dvec3(maj.world_max) - lo, cell = ext / glm::dvec3(maj.res);
+  int failures = 0, inside = 0;
+  double ratio = 0;
+  for (int i = 0; i < n_points; ++i) {
+    glm::dvec3 p = lo + ext * glm::dvec3(u(rng), u(rng), u(rng));
+    if (i % 4 == 0) {  // snap one coordinate onto a cell face, where neighbouring cells meet
+      int a = i / 4 % 3;
+      p[a] = lo[a] + cell[a] * std::round((p[a] - lo[a]) / cell[a]);
+    }
+    double sigma = 0;
+    for (size_t k = 0; k < media.size(); ++k)
+      sigma += media[k].scale * samplers[k].trilinear(glm::dvec3(w2i[k] * glm::dvec4(p, 1.0)));
+    glm::ivec3 c = glm::clamp(glm::ivec3(glm::floor((p - lo) / cell)), glm::ivec3(0), maj.res - 1);
+    float m = maj.at(c);
+    if (sigma > m && ++failures < 10)
+      ADD_FAILURE() << "sigma " << sigma << " > majorant " << m << " at " << p.x << " " << p.y << " " << p.z;
+    if (sigma > 0) {
+      ++inside;
+      ratio += sigma / m;
+    }
+  }
+  EXPECT_EQ(failures, 0);
+  EXPECT_GT(inside, n_points / 20);
+  if (tightest) *tightest = ratio / std::max(inside, 1);
+}
+
+}  // namespace
+
+TEST_F(VdbTest, MajorantConservativeUnderRotationAndScale) {
+  ProceduralSpec cloud;
+  cloud.kind = "cloud";
+  cloud.voxel_size = 0.05;
+  cloud.size = glm::dvec3(1.0);
+  cloud.density = 2.0;
+  cloud.falloff = 0.5;
+  cloud.frequency = 4.0;
+  ProceduralSpec fog;
+  fog.kind = "height_fog";
+  fog.voxel_size = 0.08;
+  fog.center = {0.3, 0.1, 0};
+  fog.size = {1.2, 0.8, 0.6};
+  fog.density = 1.5;
+  fog.falloff = 0.3;
+  std::vector<Medium> media(2);
+  media[0] = {make_procedural(cloud), glm::translate(glm::dmat4(1), {0.2, -0.1, 0.05}), 3.0};
+  glm::dmat4 o2w = glm::translate(glm::dmat4(1), {0.4, 0.3, -0.2}) *
+                   glm::rotate(glm::dmat4(1), 0.6, glm::normalize(glm::dvec3(1, 1, 0.3))) *
+                   glm::scale(glm::dmat4(1), {1.5, 0.7, 1.2});
+  media[1] = {make_procedural(fog), o2w, 0.8};
+
+  std::vector<MajorantInput> in;
+  for (const auto& m : media) in.push_back({&m.grid, m.o2w, m.scale});
+  for (int res : {1, 7, 24, 80}) {  // 80: cells smaller than voxels
+    MajorantGrid maj = build_majorant(in, res);
+    int longest = std::max({maj.res.x, maj.res.y, maj.res.z});
+    EXPECT_EQ(longest, res);
+    ASSERT_EQ(maj.sigma_max.size(), size_t(maj.res.x) * maj.res.y * maj.res.z);
+    double tight = 0;
+    check_conservative(media, maj, res == 80 ? 40000 : 15000, 100 + res, &tight);
+    // The bound stays below the sum of both global maxima, and at fine resolution it is not absurdly loose.
+    float top = *std::max_element(maj.sigma_max.begin(), maj.sigma_max.end());
+    EXPECT_LE(top, (3.0 * 2.0 + 0.8 * 1.5) * 1.0001);
+    if (res >= 24) {
+      EXPECT_GT(tight, 0.4) << res;
+    }
+  }
+  // World bounds: the union of both media's dilated boxes.
+  MajorantGrid maj = build_majorant(in, 16);
+  glm::dvec3 c0 = glm::dvec3(media[0].o2w * media[0].grid.index_to_world *
+                             glm::dvec4(glm::dvec3(media[0].grid.index_min - 1), 1.0));
+  EXPECT_LE(maj.world_min.x, c0.x + 1e-6);
+}
+
+TEST_F(VdbTest, MajorantAxisAlignedBox) {
+  ProceduralSpec box;
+  box.kind = "box";
+  box.voxel_size = 0.1;
+  box.size = glm::dvec3(2.0);  // voxel centres -1.0 .. 1.0
+  box.density = 2.0;
+  DeviceGrid g = make_procedural(box);
+  MajorantGrid maj = build_majorant({{&g, glm::dmat4(1), 0.5}}, 11);
+  EXPECT_EQ(maj.res, glm::ivec3(11));
+  EXPECT_NEAR(maj.world_min.x, -1.1, 1e-6);
+  EXPECT_NEAR(maj.world_max.z, 1.1, 1e-6);
+  // Every cell overlaps the box's support: all hold 0.5 * 2 (with the small rounding margin).
+  for (float v : maj.sigma_max) {
+    EXPECT_GE(v, 1.f);
+    EXPECT_LE(v, 1.0001f);
+  }
+  check_conservative({{g, glm::dmat4(1), 0.5}}, maj, 5000, 5);
+  EXPECT_EQ(build_majorant({}, 32).res, glm::ivec3(0));
+  expect_error([&] { build_majorant({{&g, glm::dmat4(1), -1.0}}, 8); }, {"density scale"});
+  expect_error([&] { build_majorant({{&g, glm::dmat4(1), 1.0}}, 0); }, {"resolution"});
+
+  // Two separated boxes: the cells between them are empty.
+  MajorantGrid two =
+      build_majorant({{&g, glm::dmat4(1), 1.0}, {&g, glm::translate(glm::dmat4(1), {10, 0, 0}), 1.0}}, 40);
+  glm::ivec3 mid((two.res.x - 1) / 2, two.res.y / 2, two.res.z / 2);
+  EXPECT_EQ(two.at(mid), 0.f);
+  EXPECT_GE(two.at({0, mid.y, mid.z}), 2.f);
+}

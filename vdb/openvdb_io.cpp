@@ -1,0 +1,295 @@
+// Everything that includes OpenVDB (slow to compile: keep it in this one translation unit).
+#include <fmt/format.h>
+#include <nanovdb/util/OpenToNanoVDB.h>
+#include <openvdb/io/File.h>
+#include <openvdb/openvdb.h>
+#include <openvdb/tools/ChangeBackground.h>
+#include <openvdb/tools/Count.h>
+#include <openvdb/tools/Dense.h>
+#include <openvdb/tools/LevelSetSphere.h>
+#include <openvdb/tools/LevelSetUtil.h>
+#include <openvdb/tools/ValueTransformer.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <mutex>
+
+#include "vdb/vdb.h"
+
+namespace haze::vdb {
+namespace fs = std::filesystem;
+namespace {
+
+void init_openvdb() {
+  static std::once_flag once;
+  std::call_once(once, [] { openvdb::initialize(); });
+}
+
+// Library messages can span lines; ours are one line.
+std::string one_line(std::string s) {
+  std::replace(s.begin(), s.end(), '\n', ' ');
+  return s;
+}
+
+std::string type_name(const openvdb::GridBase& g) {
+  std::string t = g.valueType();
+  // OpenVDB 10 has no half grid type: "half" is a float grid stored as half in the file.
+  if (t == "float" && g.saveFloatAsHalf()) return "half";
+  return t;
+}
+
+// OpenVDB's Mat4 multiplies row vectors (p' = p * M) and glm column vectors (p' = M * p); with glm's
+// m[col][row] indexing the element copy is the identity.
+glm::dmat4 to_glm(const openvdb::math::Mat4d& m) {
+  glm::dmat4 r;
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j) r[i][j] = m(i, j);
+  return r;
+}
+
+void world_bbox(const openvdb::math::Transform& xf, const openvdb::CoordBBox& b, glm::dvec3& lo,
+                glm::dvec3& hi) {
+  lo = glm::dvec3(std::numeric_limits<double>::max());
+  hi = -lo;
+  for (int c = 0; c < 8; ++c) {
+    openvdb::Vec3d p((c & 1 ? b.max() : b.min()).x(), (c & 2 ? b.max() : b.min()).y(),
+                     (c & 4 ? b.max() : b.min()).z());
+    openvdb::Vec3d w = xf.indexToWorld(p);
+    lo = glm::min(lo, glm::dvec3(w.x(), w.y(), w.z()));
+    hi = glm::max(hi, glm::dvec3(w.x(), w.y(), w.z()));
+  }
+}
+
+std::unique_ptr<openvdb::io::File> open_file(const std::string& path) {
+  init_openvdb();
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw Error(fmt::format("{}: file not found; check the path", path));
+  if (!fs::is_regular_file(path, ec))
+    throw Error(fmt::format("{}: not a regular file; give a .vdb file", path));
+  auto file = std::make_unique<openvdb::io::File>(path);
+  try {
+    file->open(/*delayLoad=*/false);  // no memory mapping: the file may be replaced while we hold grids
+  } catch (const std::exception& e) {
+    throw Error(fmt::format("{}: not a readable VDB file ({}); check that it is an OpenVDB .vdb file", path,
+                            one_line(e.what())));
+  }
+  return file;
+}
+
+std::vector<std::string> grid_names(const openvdb::io::File& file) {
+  std::vector<std::string> names;
+  for (auto it = file.beginName(); it != file.endName(); ++it) names.push_back(*it);
+  return names;
+}
+
+// Replaces NaN/Inf everywhere the sampler can read (voxels active or not, tiles, background); returns the
+// number of voxels affected (a tile counts all the voxels it covers).
+uint64_t scrub_non_finite(openvdb::FloatTree& tree, bool replace) {
+  uint64_t bad = 0;
+  for (auto leaf = tree.beginLeaf(); leaf; ++leaf) {
+    float* v = leaf->buffer().data();
+    for (openvdb::Index i = 0; i < openvdb::FloatTree::LeafNodeType::SIZE; ++i)
+      if (!std::isfinite(v[i])) {
+        ++bad;
+        if (replace) v[i] = 0.f;
+      }
+  }
+  auto tile = tree.beginValueAll();
+  tile.setMaxDepth(tree.treeDepth() - 2);  // tiles only: leaves were done above
+  for (; tile; ++tile)
+    if (!std::isfinite(*tile)) {
+      bad += tile.getVoxelCount();
+      if (replace) tile.setValue(0.f);
+    }
+  if (!std::isfinite(tree.background())) {
+    ++bad;
+    if (replace) openvdb::tools::changeBackground(tree, 0.f);
+  }
+  return bad;
+}
+
+DeviceGrid to_device(openvdb::FloatGrid& grid, const std::string& where, NanPolicy nan) {
+  const std::string name = grid.getName();
+  if (!grid.transform().isLinear())
+    throw Error(
+        fmt::format("{}: grid '{}' has a non-affine (frustum) transform; resample it to a linear transform",
+                    where, name));
+  uint64_t bad = scrub_non_finite(grid.tree(), nan == NanPolicy::Zero);
+  if (bad && nan == NanPolicy::Error)
+    throw Error(
+        fmt::format("{}: grid '{}' has {} NaN/Inf voxel values; fix the file or use the NaN policy 'zero' "
+                    "to replace them by 0",
+                    where, name, bad));
+  if (grid.activeVoxelCount() == 0)
+    throw Error(fmt::format("{}: grid '{}' is empty (no active voxels); pick a grid that holds density",
+                            where, name));
+
+  DeviceGrid d;
+  d.name = name;
+  d.nan_voxels = bad;
+  d.active_voxels = grid.activeVoxelCount();
+  d.index_to_world = to_glm(grid.transform().baseMap()->getAffineMap()->getMat4());
+  openvdb::CoordBBox b = grid.evalActiveVoxelBoundingBox();
+  d.index_min = {b.min().x(), b.min().y(), b.min().z()};
+  d.index_max = {b.max().x(), b.max().y(), b.max().z()};
+  d.background = grid.background();
+
+  auto handle = nanovdb::openToNanoVDB(grid);  // StatsMode::Default computes min/max for value_min/max
+  const auto* ng = handle.grid<float>();
+  if (!ng)
+    throw Error(fmt::format("{}: grid '{}': NanoVDB conversion failed; report this file", where, name));
+  d.value_min = ng->tree().root().minimum();
+  d.value_max = ng->tree().root().maximum();
+  d.nanovdb.assign(handle.data(), handle.data() + handle.size());
+  return d;
+}
+
+openvdb::CoordBBox centres_inside(glm::dvec3 lo, glm::dvec3 hi, double vs) {
+  // Voxel centres i * vs within [lo, hi]; the epsilon keeps centres that sit on the boundary.
+  auto c = [&](double x, bool up) {
+    double t = x / vs;
+    return int(up ? std::ceil(t - 1e-9) : std::floor(t + 1e-9));
+  };
+  return openvdb::CoordBBox(openvdb::Coord(c(lo.x, true), c(lo.y, true), c(lo.z, true)),
+                            openvdb::Coord(c(hi.x, false), c(hi.y, false), c(hi.z, false)));
+}
+
+openvdb::FloatGrid::Ptr build_procedural(const ProceduralSpec& s) {
+  init_openvdb();
+  validate(s, "procedural volume");
+  const double vs = s.voxel_size;
+  openvdb::FloatGrid::Ptr grid;
+  if (s.kind == "sphere") {
+    // Narrow-band level set turned into fog: 1 inside, ramping to 0 over the 3 voxels inside the surface.
+    grid = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(
+        float(s.size.x * 0.5), openvdb::Vec3f(float(s.center.x), float(s.center.y), float(s.center.z)),
+        float(vs), 3.f);
+    openvdb::tools::sdfToFogVolume(*grid);
+    const float k = float(s.density);
+    openvdb::tools::foreach (grid->beginValueOn(),
+                             [k](const openvdb::FloatGrid::ValueOnIter& it) { it.setValue(*it * k); });
+  } else {
+    grid = openvdb::FloatGrid::create(0.f);
+    grid->setTransform(openvdb::math::Transform::createLinearTransform(vs));
+    if (s.kind == "box") {
+      openvdb::CoordBBox b = centres_inside(s.center - s.size * 0.5, s.center + s.size * 0.5, vs);
+      if (b.empty()) throw Error("procedural volume: box contains no voxel centre; lower voxel_size");
+      grid->fill(b, float(s.density), true);  // sparse fill: constant 8^3 and larger blocks become tiles
+    } else {
+      glm::dvec3 h = s.kind == "cloud" ? glm::dvec3(s.size.x * 0.5 * (1 + s.falloff)) : s.size * 0.5;
+      openvdb::CoordBBox b = centres_inside(s.center - h, s.center + h, vs);
+      b.expand(1);
+      openvdb::tools::Dense<float, openvdb::tools::LayoutXYZ> dense(b, 0.f);
+      tbb::parallel_for(tbb::blocked_range<int>(b.min().x(), b.max().x() + 1),
+                        [&](const tbb::blocked_range<int>& r) {
+                          for (int x = r.begin(); x < r.end(); ++x)
+                            for (int y = b.min().y(); y <= b.max().y(); ++y)
+                              for (int z = b.min().z(); z <= b.max().z(); ++z)
+                                dense.setValue(openvdb::Coord(x, y, z),
+                                               float(procedural_value(s, glm::dvec3(x, y, z) * vs)));
+                        });
+      openvdb::tools::copyFromDense(dense, *grid, 0.f);  // zeros (the background) stay inactive
+    }
+  }
+  grid->setName("density");
+  grid->setGridClass(openvdb::GRID_FOG_VOLUME);
+  return grid;
+}
+
+}  // namespace
+
+std::vector<GridInfo> inspect(const std::string& path) {
+  auto file = open_file(path);
+  openvdb::GridPtrVecPtr grids;
+  try {
+    grids = file->getGrids();
+  } catch (const std::exception& e) {
+    throw Error(
+        fmt::format("{}: cannot read grids ({}); the file may be corrupt or use a grid type OpenVDB {} "
+                    "does not know",
+                    path, one_line(e.what()), OPENVDB_LIBRARY_VERSION_STRING));
+  }
+  std::vector<GridInfo> out;
+  for (const auto& g : *grids) {
+    GridInfo info;
+    info.name = g->getName();
+    info.type = type_name(*g);
+    info.grid_class = openvdb::GridBase::gridClassToString(g->getGridClass());
+    info.active_voxels = g->activeVoxelCount();
+    info.memory_bytes = g->memUsage();
+    info.affine = g->transform().isLinear();
+    openvdb::Vec3d vs = g->voxelSize();
+    info.voxel_size = {vs.x(), vs.y(), vs.z()};
+    openvdb::CoordBBox b = g->evalActiveVoxelBoundingBox();
+    if (!b.empty()) {
+      info.index_min = {b.min().x(), b.min().y(), b.min().z()};
+      info.index_max = {b.max().x(), b.max().y(), b.max().z()};
+      world_bbox(g->transform(), b, info.world_min, info.world_max);
+    }
+    if (info.active_voxels > 0)
+      g->apply<openvdb::NumericGridTypes>([&](const auto& grid) {
+        auto mm = openvdb::tools::minMax(grid.tree());
+        info.value_min = double(mm.min());
+        info.value_max = double(mm.max());
+      });
+    out.push_back(std::move(info));
+  }
+  return out;
+}
+
+DeviceGrid load_grid(const std::string& path, const std::string& grid_name, NanPolicy nan) {
+  auto file = open_file(path);
+  std::vector<std::string> names = grid_names(*file);
+  if (std::find(names.begin(), names.end(), grid_name) == names.end())
+    throw Error(fmt::format(
+        "{}: no grid named '{}' (grids present: {}); set the grid name to one of these", path, grid_name,
+        names.empty() ? std::string("none") : fmt::format("'{}'", fmt::join(names, "', '"))));
+  openvdb::GridBase::Ptr base;
+  try {
+    base = file->readGrid(grid_name);
+  } catch (const std::exception& e) {
+    throw Error(fmt::format("{}: cannot read grid '{}' ({}); the file may be corrupt", path, grid_name,
+                            one_line(e.what())));
+  }
+  auto grid = openvdb::gridPtrCast<openvdb::FloatGrid>(base);
+  if (!grid)
+    throw Error(
+        fmt::format("{}: grid '{}' has type {}; a scalar float (or half) density grid is needed, pick "
+                    "another grid or convert it",
+                    path, grid_name, type_name(*base)));
+  return to_device(*grid, path, nan);
+}
+
+DeviceGrid make_procedural(const ProceduralSpec& spec) {
+  auto grid = build_procedural(spec);
+  return to_device(*grid, fmt::format("procedural {}", spec.kind), NanPolicy::Error);
+}
+
+void write_procedural(const ProceduralSpec& spec, const std::string& out_path) {
+  auto grid = build_procedural(spec);
+  // Write beside the target and rename, so readers never see a half-written file.
+  const std::string tmp = fmt::format("{}.tmp{}", out_path, ::getpid());
+  try {
+    openvdb::io::File file(tmp);
+    file.write({grid});
+    file.close();
+  } catch (const std::exception& e) {
+    std::error_code ec;
+    fs::remove(tmp, ec);
+    throw Error(fmt::format("{}: cannot write ({}); check that the directory exists and is writable",
+                            out_path, one_line(e.what())));
+  }
+  std::error_code ec;
+  fs::rename(tmp, out_path, ec);
+  if (ec) {
+    std::string why = ec.message();
+    fs::remove(tmp, ec);
+    throw Error(fmt::format("{}: cannot rename the temporary file into place ({})", out_path, why));
+  }
+}
+
+}  // namespace haze::vdb

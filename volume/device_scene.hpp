@@ -1,0 +1,39 @@
+// The scene as the shaders see it: media packed for PNanoVDB, the majorant grid, the light list and the
+// GpuScene block. Host-side medium model (DESIGN.md section 3).
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "scene/scene.hpp"
+#include "vdb/vdb.h"
+#include "volume/features.hpp"
+#include "volume/glsl.hpp"
+
+namespace haze::volume {
+
+// HG g is kept away from +-1, where the phase function becomes a delta the sampler cannot represent.
+constexpr float kMaxAbsG = 0.99f;
+// Upper bound on tracking steps per query: a pathological majorant cannot hang a dispatch.
+constexpr uint32_t kMaxTrackingSteps = 1u << 20;
+
+struct DeviceMedia {
+  std::vector<vdb::DeviceGrid> grids;       // density (and emission) grids, in upload order
+  std::vector<uint32_t> nanovdb;            // all grids, each at a 32-byte aligned offset
+  std::vector<glsl::GpuMedium> media;
+  vdb::MajorantGrid majorant;
+  std::vector<std::string> notes;           // clamps and replacements the user should know about
+  uint64_t nan_voxels = 0;
+};
+
+// Loads or generates every VDB medium of the scene and builds the majorant grid.
+DeviceMedia build_media(const scene::Scene& s);
+
+// Local lights first (equi-angular sampling walks the first counts.z entries), then sun, then environment.
+std::vector<glsl::GpuLight> build_lights(const scene::Scene& s);
+
+glsl::GpuScene build_gpu_scene(const scene::Scene& s, const DeviceMedia& media, size_t num_lights,
+                               size_t num_local_lights);
+
+}  // namespace haze::volume
