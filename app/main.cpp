@@ -1,8 +1,8 @@
 // The haze command line: parsing and wiring only.
-#include <CLI/CLI.hpp>
 #include <fmt/format.h>
 #include <unistd.h>
 
+#include <CLI/CLI.hpp>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -125,7 +125,8 @@ int main(int argc, char** argv) {
   info->add_option("file", info_file, ".vdb file")->required();
   info->add_flag("--json", info_json, "machine-readable output");
 
-  auto* bench = app.add_subcommand("bench", "rays, samples and lookups per second; pass times against a copy kernel");
+  auto* bench =
+      app.add_subcommand("bench", "rays, samples and lookups per second; pass times against a copy kernel");
   haze::bench::Options bo;
   bench->add_flag("--json", bo.json, "print JSON instead of a table");
   bench->add_option("--size", bo.size, "image size WIDTHxHEIGHT");
@@ -168,10 +169,12 @@ int main(int argc, char** argv) {
         fmt::print("{}\n", haze::vdb::to_json(grids).dump(2));
       } else {
         for (const auto& g : grids)
-          fmt::print("{:<12} {:<6} {:<10} bbox [{},{},{}]..[{},{},{}] voxel {:.4g} active {} range [{:.4g}, {:.4g}] {:.1f} MB\n",
-                     g.name, g.type, g.grid_class, g.index_min.x, g.index_min.y, g.index_min.z, g.index_max.x,
-                     g.index_max.y, g.index_max.z, g.voxel_size.x, g.active_voxels, g.value_min, g.value_max,
-                     g.memory_bytes / 1e6);
+          fmt::print(
+              "{:<12} {:<6} {:<10} bbox [{},{},{}]..[{},{},{}] voxel {:.4g} active {} range [{:.4g}, {:.4g}] "
+              "{:.1f} MB\n",
+              g.name, g.type, g.grid_class, g.index_min.x, g.index_min.y, g.index_min.z, g.index_max.x,
+              g.index_max.y, g.index_max.z, g.voxel_size.x, g.active_voxels, g.value_min, g.value_max,
+              g.memory_bytes / 1e6);
       }
       return 0;
     }

@@ -69,7 +69,8 @@ int run(const Options& o, const gpu::ContextOptions& co) {
   r.add_samples(1);  // warm-up: first-dispatch compile
   size_t warm = r.pass_stats().at("trace").ms.size();
   r.add_samples(o.spp);
-  std::vector<double> trace_ms(r.pass_stats().at("trace").ms.begin() + warm, r.pass_stats().at("trace").ms.end());
+  std::vector<double> trace_ms(r.pass_stats().at("trace").ms.begin() + warm,
+                               r.pass_stats().at("trace").ms.end());
   r.resolve();
   r.resolve();
   const auto& res = r.pass_stats().at("resolve").ms;
@@ -124,10 +125,13 @@ int run(const Options& o, const gpu::ContextOptions& co) {
     fmt::print("{}\n", j.dump(2));
     return 0;
   }
-  fmt::print("haze bench on {} at {}x{}, {} spp (ratios: pass time / copy of the {} MB accumulation buffer)\n",
-             ctx.device_name(), w, h, o.spp, pixels * glsl::ACC_STRIDE * 4 / 1e6);
-  fmt::print("  {:<28}{:>14}\n", "camera rays / s", fmt::format("{:.3g}", j["camera_rays_per_s"].get<double>()));
-  fmt::print("  {:<28}{:>14}\n", "volume samples / s", fmt::format("{:.3g}", j["volume_samples_per_s"].get<double>()));
+  fmt::print(
+      "haze bench on {} at {}x{}, {} spp (ratios: pass time / copy of the {} MB accumulation buffer)\n",
+      ctx.device_name(), w, h, o.spp, pixels * glsl::ACC_STRIDE * 4 / 1e6);
+  fmt::print("  {:<28}{:>14}\n", "camera rays / s",
+             fmt::format("{:.3g}", j["camera_rays_per_s"].get<double>()));
+  fmt::print("  {:<28}{:>14}\n", "volume samples / s",
+             fmt::format("{:.3g}", j["volume_samples_per_s"].get<double>()));
   fmt::print("  {:<28}{:>14}\n", "density lookups / s",
              fmt::format("{:.3g}", j["density_lookups_per_s"].get<double>()));
   fmt::print("  {:<28}{:>14}\n", "pass", "x copy");

@@ -100,7 +100,9 @@ void write_json(const std::string& path, const nlohmann::json& j) {
 void ensure_writable_dir(const std::string& dir) {
   std::error_code ec;
   fs::create_directories(dir, ec);
-  if (ec) throw Error(fmt::format("cannot create output directory {}: {}; choose a writable --out", dir, ec.message()));
+  if (ec)
+    throw Error(
+        fmt::format("cannot create output directory {}: {}; choose a writable --out", dir, ec.message()));
   fs::path probe = fs::path(dir) / fmt::format(".haze-write-test{}", getpid());
   std::ofstream f(probe);
   if (!f) throw Error(fmt::format("output directory {} is not writable; choose a writable --out", dir));

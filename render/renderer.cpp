@@ -52,17 +52,19 @@ Renderer::Renderer(gpu::Context& ctx, const scene::Scene& s) : ctx_(ctx), scene_
   ldr_buf_ = gpu::Buffer(ctx, "preview", "outputs", pixels * 4, "RGBA8");
   // Buffers exist only for the features the scene uses.
   if (features_.lights()) {
-    lights_buf_ = gpu::Buffer(ctx, "lights", "scene data", lights.size() * sizeof(glsl::GpuLight), "GpuLight");
+    lights_buf_ =
+        gpu::Buffer(ctx, "lights", "scene data", lights.size() * sizeof(glsl::GpuLight), "GpuLight");
     lights_buf_.upload(lights);
   }
   if (features_.hetero) {
     nanovdb_buf_ = gpu::Buffer(ctx, "nanovdb grids", "scene data", media_.nanovdb.size() * 4, "NanoVDB");
     nanovdb_buf_.upload(media_.nanovdb);
-    media_buf_ = gpu::Buffer(ctx, "media", "scene data", media_.media.size() * sizeof(glsl::GpuMedium), "GpuMedium");
+    media_buf_ =
+        gpu::Buffer(ctx, "media", "scene data", media_.media.size() * sizeof(glsl::GpuMedium), "GpuMedium");
     media_buf_.upload(media_.media);
-    majorant_buf_ = gpu::Buffer(ctx, "majorant grid", "scene data", media_.majorant.sigma_max.size() * 4,
-                                fmt::format("f32 {}x{}x{}", media_.majorant.res.x, media_.majorant.res.y,
-                                            media_.majorant.res.z));
+    majorant_buf_ = gpu::Buffer(
+        ctx, "majorant grid", "scene data", media_.majorant.sigma_max.size() * 4,
+        fmt::format("f32 {}x{}x{}", media_.majorant.res.x, media_.majorant.res.y, media_.majorant.res.z));
     majorant_buf_.upload(media_.majorant.sigma_max);
   }
 
@@ -70,7 +72,8 @@ Renderer::Renderer(gpu::Context& ctx, const scene::Scene& s) : ctx_(ctx), scene_
   std::string dir = spv_dir();
   trace_ = std::make_unique<gpu::ComputePipeline>(
       ctx, fmt::format("{}/volume/trace.comp.{}.spv", dir, features_.mask()), num_buffers, 4);
-  resolve_ = std::make_unique<gpu::ComputePipeline>(ctx, fmt::format("{}/volume/resolve.comp.0.spv", dir), 3, 16);
+  resolve_ =
+      std::make_unique<gpu::ComputePipeline>(ctx, fmt::format("{}/volume/resolve.comp.0.spv", dir), 3, 16);
   pipeline_ms_ = trace_->creation_ms() + resolve_->creation_ms();
   timer_ = std::make_unique<gpu::Timer>(ctx, 16);
 }
@@ -113,7 +116,9 @@ Image Renderer::resolve() {
     float exposure_scale;
     uint32_t tonemap;
   } push{pixels, uint32_t(samples_), std::exp2(r.exposure),
-         r.tonemap == "aces" ? 0u : r.tonemap == "reinhard" ? 1u : 2u};
+         r.tonemap == "aces"       ? 0u
+         : r.tonemap == "reinhard" ? 1u
+                                   : 2u};
   ctx_.submit_and_wait([&](VkCommandBuffer cmd) {
     timer_->reset(cmd);
     timer_->begin(cmd, "resolve");
@@ -130,7 +135,9 @@ Image Renderer::resolve() {
   return img;
 }
 
-std::vector<float> Renderer::accum() const { return accum_buf_.download_vector<float>(); }
+std::vector<float> Renderer::accum() const {
+  return accum_buf_.download_vector<float>();
+}
 
 nlohmann::json Renderer::stats() const {
   nlohmann::json j;

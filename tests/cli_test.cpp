@@ -37,7 +37,8 @@ class Cli : public ::testing::Test {
   fs::path dir;
   void SetUp() override {
     dir = fs::temp_directory_path() /
-          fmt::format("haze-cli-{}-{}", ::testing::UnitTest::GetInstance()->current_test_info()->name(), getpid());
+          fmt::format("haze-cli-{}-{}", ::testing::UnitTest::GetInstance()->current_test_info()->name(),
+                      getpid());
     fs::remove_all(dir);
     fs::create_directories(dir);
   }
@@ -114,12 +115,13 @@ TEST_F(Cli, SameSeedSameImageOtherSeedOtherImage) {
 }
 
 TEST_F(Cli, MissingSceneFile) {
-  expect_one_line_error(run(fmt::format("render {}/nope.json --out {}", dir.string(), dir.string())), "nope.json");
+  expect_one_line_error(run(fmt::format("render {}/nope.json --out {}", dir.string(), dir.string())),
+                        "nope.json");
 }
 
 TEST_F(Cli, MalformedJson) {
-  expect_one_line_error(run(fmt::format("render {} --out {}", write("bad.json", "{ \"camera\": "), dir.string())),
-                        "bad.json");
+  expect_one_line_error(
+      run(fmt::format("render {} --out {}", write("bad.json", "{ \"camera\": "), dir.string())), "bad.json");
 }
 
 TEST_F(Cli, UnknownKeyIsNamed) {
@@ -138,8 +140,8 @@ TEST_F(Cli, ZeroSizeImage) {
 }
 
 TEST_F(Cli, UnknownSetPath) {
-  expect_one_line_error(run(fmt::format("render {} --out {} --set render.nope=1", small_scene(), dir.string())),
-                        "render.nope");
+  expect_one_line_error(
+      run(fmt::format("render {} --out {} --set render.nope=1", small_scene(), dir.string())), "render.nope");
 }
 
 TEST_F(Cli, MissingAndInvalidVdbFiles) {

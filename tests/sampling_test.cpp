@@ -84,8 +84,8 @@ TEST_P(HG, SampledDirectionsFollowThePhaseFunction) {
   int df = bins - 1;
   // The CDF itself must match the phase function it claims to integrate.
   EXPECT_NEAR(cdf(1.0), 1.0, 1e-6);
-  EXPECT_NEAR(cdf(0.3) - cdf(0.2), simpson([&](double mu) { return 2 * M_PI * hg_phase(float(mu), g); }, 0.2, 0.3, 20000),
-              1e-4);
+  EXPECT_NEAR(cdf(0.3) - cdf(0.2),
+              simpson([&](double mu) { return 2 * M_PI * hg_phase(float(mu), g); }, 0.2, 0.3, 20000), 1e-4);
   EXPECT_LT(chi2, chi2_critical(df)) << "g = " << g << ", df = " << df;
 }
 
@@ -102,12 +102,14 @@ TEST(EquiAngular, SamplesFollowTheirPdf) {
     for (int i = 0; i < 200000; ++i) {
       float t = equi_angular_sample(e, rng_next(state));
       ASSERT_GE(t, t0 - 1e-4f);
-      if (t > hi) ++outside;
-      else ts.push_back(t);
+      if (t > hi)
+        ++outside;
+      else
+        ts.push_back(t);
     }
     int df = 0;
-    double chi2 =
-        chi2_statistic(ts, t0, hi, 100, [&](double t) { return equi_angular_pdf(e, float(t)); }, &df, 200000.0);
+    double chi2 = chi2_statistic(
+        ts, t0, hi, 100, [&](double t) { return equi_angular_pdf(e, float(t)); }, &df, 200000.0);
     EXPECT_LT(chi2, chi2_critical(df)) << "[" << t0 << ", " << t1 << "]";
     double tail = 1 - simpson([&](double t) { return equi_angular_pdf(e, float(t)); }, t0, hi, 20000);
     EXPECT_NEAR(double(outside) / 200000, tail, 5e-3);
@@ -124,11 +126,12 @@ TEST(TruncatedExponential, SamplesFollowTheirPdf) {
       ASSERT_LE(tau, tau_total * (1 + 1e-5f));
       taus.push_back(tau);
     }
-    double norm = simpson([&](double t) { return truncated_exp_pdf_tau(float(t), tau_total); }, 0, tau_total, 20000);
+    double norm =
+        simpson([&](double t) { return truncated_exp_pdf_tau(float(t), tau_total); }, 0, tau_total, 20000);
     EXPECT_NEAR(norm, 1.0, 1e-3) << tau_total;
     int df = 0;
-    double chi2 = chi2_statistic(taus, 0, tau_total, 100,
-                                 [&](double t) { return truncated_exp_pdf_tau(float(t), tau_total); }, &df);
+    double chi2 = chi2_statistic(
+        taus, 0, tau_total, 100, [&](double t) { return truncated_exp_pdf_tau(float(t), tau_total); }, &df);
     EXPECT_LT(chi2, chi2_critical(df)) << tau_total;
   }
 }
@@ -144,7 +147,8 @@ TEST(Cone, UniformConeStaysInsideAndIsUniformInCosine) {
     ASSERT_GE(cs.back(), cos_max - 1e-5);
   }
   int df = 0;
-  double chi2 = chi2_statistic(cs, cos_max, 1, 50, [&](double) { return 1 / (1 - cos_max); }, &df);
+  double chi2 = chi2_statistic(
+      cs, cos_max, 1, 50, [&](double) { return 1 / (1 - cos_max); }, &df);
   EXPECT_LT(chi2, chi2_critical(df));
 }
 

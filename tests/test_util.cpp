@@ -9,7 +9,9 @@ gpu::Context& context() {
   return ctx;
 }
 
-scene::Scene make_scene(const nlohmann::json& j) { return scene::from_json(j, "test scene", ""); }
+scene::Scene make_scene(const nlohmann::json& j) {
+  return scene::from_json(j, "test scene", "");
+}
 
 Estimate estimate(const render::Renderer& r, uint32_t sum, uint32_t sq) {
   std::vector<float> acc = r.accum();

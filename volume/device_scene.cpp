@@ -76,9 +76,9 @@ DeviceMedia build_media(const scene::Scene& s) {
   for (size_t i = 0; i < s.media.size(); ++i) {
     const scene::Medium& m = s.media[i];
     std::string where = fmt::format("media[{}]", i);
-    vdb::DeviceGrid density = m.procedural
-                                  ? vdb::make_procedural(vdb::procedural_from_json(*m.procedural, where + ".procedural"))
-                                  : vdb::load_grid(resolve_path(s, m.file), m.grid);
+    vdb::DeviceGrid density =
+        m.procedural ? vdb::make_procedural(vdb::procedural_from_json(*m.procedural, where + ".procedural"))
+                     : vdb::load_grid(resolve_path(s, m.file), m.grid);
     if (density.nan_voxels > 0)
       dm.notes.push_back(fmt::format("{}: {} NaN/Inf voxels replaced by 0", where, density.nan_voxels));
     glsl::GpuMedium g{};
@@ -112,9 +112,10 @@ DeviceMedia build_media(const scene::Scene& s) {
         vdb::DeviceGrid e = vdb::load_grid(resolve_path(s, m.file), m.emission.grid);
         // The emission grid is read with the density grid's index transform: they must share it.
         if (e.index_to_world != dm.grids[density_index.back()].index_to_world)
-          throw vdb::Error(fmt::format("{}: grid '{}' and grid '{}' of {} have different transforms; resample the "
-                                       "emission grid onto the density grid",
-                                       where, m.emission.grid, m.grid, m.file));
+          throw vdb::Error(
+              fmt::format("{}: grid '{}' and grid '{}' of {} have different transforms; resample the "
+                          "emission grid onto the density grid",
+                          where, m.emission.grid, m.grid, m.file));
         emission_offset = append_grid(dm, std::move(e));
       } else {
         emission_offset = density_offset;  // procedural media emit in proportion to their density
@@ -190,7 +191,8 @@ glsl::GpuScene build_gpu_scene(const scene::Scene& s, const DeviceMedia& dm, siz
     g.haze_min = glm::vec4(lo, h.sigma_t);
     g.haze_max = glm::vec4(hi, 0);
   }
-  if (s.lights.environment) g.env = glm::vec4(s.lights.environment->color * s.lights.environment->intensity, 0);
+  if (s.lights.environment)
+    g.env = glm::vec4(s.lights.environment->color * s.lights.environment->intensity, 0);
   g.sun_direction = glm::vec4(0, 1, 0, 1);  // cos 1: no visible disk
   if (s.lights.sun && s.lights.sun->angular_diameter > 0.f) {
     const auto& sun = *s.lights.sun;
@@ -202,7 +204,8 @@ glsl::GpuScene build_gpu_scene(const scene::Scene& s, const DeviceMedia& dm, siz
   g.maj_res = glm::uvec4(glm::max(dm.majorant.res, glm::ivec3(0)), kMaxTrackingSteps);
   g.maj_min = glm::vec4(dm.majorant.world_min, 0);
   g.maj_max = glm::vec4(dm.majorant.world_max, 0);
-  g.settings = glm::vec4(s.render.equiangular_probability, s.render.rr_threshold, s.render.pixel_jitter ? 1.f : 0.f, 0);
+  g.settings = glm::vec4(s.render.equiangular_probability, s.render.rr_threshold,
+                         s.render.pixel_jitter ? 1.f : 0.f, 0);
   return g;
 }
 

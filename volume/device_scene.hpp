@@ -19,11 +19,11 @@ constexpr float kMaxAbsG = 0.99f;
 constexpr uint32_t kMaxTrackingSteps = 1u << 20;
 
 struct DeviceMedia {
-  std::vector<vdb::DeviceGrid> grids;       // density (and emission) grids, in upload order
-  std::vector<uint32_t> nanovdb;            // all grids, each at a 32-byte aligned offset
+  std::vector<vdb::DeviceGrid> grids;  // density (and emission) grids, in upload order
+  std::vector<uint32_t> nanovdb;       // all grids, each at a 32-byte aligned offset
   std::vector<glsl::GpuMedium> media;
   vdb::MajorantGrid majorant;
-  std::vector<std::string> notes;           // clamps and replacements the user should know about
+  std::vector<std::string> notes;  // clamps and replacements the user should know about
   uint64_t nan_voxels = 0;
 };
 

@@ -16,8 +16,8 @@ struct Features {
   bool emission = false;  // an emitting VDB medium
   bool sun = false;
   bool env = false;
-  bool local = false;     // point or spot lights: equi-angular sampling
-  bool multi = false;     // max_depth > 1
+  bool local = false;  // point or spot lights: equi-angular sampling
+  bool multi = false;  // max_depth > 1
 
   uint32_t mask() const {
     return uint32_t(hetero) | uint32_t(haze) << 1 | uint32_t(emission) << 2 | uint32_t(sun) << 3 |

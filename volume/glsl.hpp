@@ -8,9 +8,9 @@
 namespace haze::glsl {
 using namespace glm;
 using uint = glm::uint;
+#include "shaders/common/color.glsl"
 #include "shaders/common/compat.glsl"
 #include "shaders/common/rng.glsl"
 #include "shaders/common/sampling.glsl"
-#include "shaders/common/color.glsl"
 #include "shaders/volume/gpu_scene.glsl"
 }  // namespace haze::glsl

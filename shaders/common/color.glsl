@@ -4,7 +4,9 @@
 #include "common/compat.glsl"
 
 // Rec.709 / sRGB-primaries luminance (DESIGN.md section 5; the reference used Rec.601).
-HAZE_INLINE float luminance(vec3 c) { return dot(c, vec3(0.2126f, 0.7152f, 0.0722f)); }
+HAZE_INLINE float luminance(vec3 c) {
+  return dot(c, vec3(0.2126f, 0.7152f, 0.0722f));
+}
 
 // Planck's law at wavelength lambda_nm, relative to a 6500 K emitter at 550 nm, so that the scale
 // parameter of a blackbody medium reads as "radiance of a 6500 K body".
@@ -20,7 +22,8 @@ HAZE_INLINE float planck_relative(float lambda_nm, float kelvin) {
 
 HAZE_INLINE vec3 blackbody_rgb(float kelvin) {
   if (kelvin <= 0.0f) return vec3(0.0f);
-  return vec3(planck_relative(610.0f, kelvin), planck_relative(550.0f, kelvin), planck_relative(465.0f, kelvin));
+  return vec3(planck_relative(610.0f, kelvin), planck_relative(550.0f, kelvin),
+              planck_relative(465.0f, kelvin));
 }
 
 // Narkowicz's ACES filmic fit.

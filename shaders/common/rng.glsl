@@ -21,6 +21,8 @@ HAZE_INLINE uint rng_next_uint(INOUT(uint) state) {
 }
 
 // Uniform in [0, 1): 24 random bits so that 1 is never returned.
-HAZE_INLINE float rng_next(INOUT(uint) state) { return float(rng_next_uint(state) >> 8u) * (1.0f / 16777216.0f); }
+HAZE_INLINE float rng_next(INOUT(uint) state) {
+  return float(rng_next_uint(state) >> 8u) * (1.0f / 16777216.0f);
+}
 
 #endif

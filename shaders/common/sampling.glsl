@@ -9,7 +9,9 @@ HAZE_INLINE float one_minus_exp_neg(float x) {
 }
 
 // log(1 - x) for x in [0, 1), accurate for small x.
-HAZE_INLINE float log_one_minus(float x) { return x < 1e-4f ? -x * (1.0f + 0.5f * x) : log(1.0f - x); }
+HAZE_INLINE float log_one_minus(float x) {
+  return x < 1e-4f ? -x * (1.0f + 0.5f * x) : log(1.0f - x);
+}
 
 // Orthonormal basis around a unit vector n (Duff et al. 2017).
 HAZE_INLINE vec3 onb_to_world(vec3 n, vec3 local) {

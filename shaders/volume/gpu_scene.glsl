@@ -17,20 +17,20 @@ struct GpuLight {
 
 struct GpuMedium {
   mat4 world_to_index;
-  vec4 albedo_g;     // rgb albedo, w: HG g (clamped)
-  vec4 world_min;    // world bounds of the medium (dilated by one voxel); w: density scale
-  vec4 world_max;    // w: emission scale
-  uvec4 grid;        // x: byte offset of the density grid, y: byte offset of the emission grid, z: emission mode
-  vec4 emission;     // x: kelvin per grid unit (blackbody)
+  vec4 albedo_g;   // rgb albedo, w: HG g (clamped)
+  vec4 world_min;  // world bounds of the medium (dilated by one voxel); w: density scale
+  vec4 world_max;  // w: emission scale
+  uvec4 grid;     // x: byte offset of the density grid, y: byte offset of the emission grid, z: emission mode
+  vec4 emission;  // x: kelvin per grid unit (blackbody)
 };
 
 struct GpuScene {
   vec4 cam_position;
-  vec4 cam_right;    // scaled by tan(fov/2) * aspect
-  vec4 cam_up;       // scaled by tan(fov/2)
+  vec4 cam_right;  // scaled by tan(fov/2) * aspect
+  vec4 cam_up;     // scaled by tan(fov/2)
   vec4 cam_forward;
-  uvec4 size;        // width, height, volume samples per camera sample, max scattering depth
-  uvec4 counts;      // media, lights, local lights, seed
+  uvec4 size;          // width, height, volume samples per camera sample, max scattering depth
+  uvec4 counts;        // media, lights, local lights, seed
   vec4 haze_albedo_g;  // rgb albedo, w: g
   vec4 haze_min;       // xyz bounds, w: sigma_t
   vec4 haze_max;
@@ -40,7 +40,7 @@ struct GpuScene {
   uvec4 maj_res;       // majorant grid resolution; w: max tracking steps per query
   vec4 maj_min;        // world bounds of the majorant grid
   vec4 maj_max;
-  vec4 settings;       // x: equi-angular probability, y: Russian roulette threshold, z: pixel jitter (0/1)
+  vec4 settings;  // x: equi-angular probability, y: Russian roulette threshold, z: pixel jitter (0/1)
 };
 
 // Accumulation layout per pixel: sums, then sums of squares.

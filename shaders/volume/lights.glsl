@@ -4,15 +4,16 @@
 
 vec3 background(vec3 d) {
   vec3 L = scene.env.rgb;
-  if (scene.sun_direction.w < 1.0f && dot(d, scene.sun_direction.xyz) >= scene.sun_direction.w) L += scene.sun_radiance.rgb;
+  if (scene.sun_direction.w < 1.0f && dot(d, scene.sun_direction.xyz) >= scene.sun_direction.w)
+    L += scene.sun_radiance.rgb;
   return L;
 }
 
 #if HAZE_LIGHTS
 struct LightSample {
-  vec3 wi;    // towards the light
-  float dist; // T_INF for distant lights
-  vec3 Li;    // radiance / pdf, including the choice of one light out of all
+  vec3 wi;     // towards the light
+  float dist;  // T_INF for distant lights
+  vec3 Li;     // radiance / pdf, including the choice of one light out of all
 };
 
 // One light chosen uniformly; u.x picks the light, u.yz sample it.

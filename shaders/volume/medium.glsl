@@ -9,7 +9,7 @@ struct MediumSample {
   float sigma_control;  // the homogeneous haze part of sigma_t (tracked in closed form)
   vec3 albedo;          // of the chosen component (chosen with probability sigma_t,i / sigma_t)
   float g;
-  vec3 emit;            // (1 - albedo_i) * Le_i of the chosen component: E[sigma_t * emit] = sigma_a * Le
+  vec3 emit;  // (1 - albedo_i) * Le_i of the chosen component: E[sigma_t * emit] = sigma_a * Le
 };
 
 HAZE_INLINE vec2 ray_box(vec3 o, vec3 d, vec3 bmin, vec3 bmax) {
@@ -17,12 +17,16 @@ HAZE_INLINE vec2 ray_box(vec3 o, vec3 d, vec3 bmin, vec3 bmax) {
   vec3 ta = (bmin - o) * inv, tb = (bmax - o) * inv;
   vec3 tmin = min(ta, tb), tmax = max(ta, tb);
   // NaN (0 * inf on a slab plane) must not poison the result: max/min ignore it in GLSL only sometimes.
-  float t0 = max(max(isnan(tmin.x) ? -T_INF : tmin.x, isnan(tmin.y) ? -T_INF : tmin.y), isnan(tmin.z) ? -T_INF : tmin.z);
-  float t1 = min(min(isnan(tmax.x) ? T_INF : tmax.x, isnan(tmax.y) ? T_INF : tmax.y), isnan(tmax.z) ? T_INF : tmax.z);
+  float t0 = max(max(isnan(tmin.x) ? -T_INF : tmin.x, isnan(tmin.y) ? -T_INF : tmin.y),
+                 isnan(tmin.z) ? -T_INF : tmin.z);
+  float t1 = min(min(isnan(tmax.x) ? T_INF : tmax.x, isnan(tmax.y) ? T_INF : tmax.y),
+                 isnan(tmax.z) ? T_INF : tmax.z);
   return vec2(t0, t1);
 }
 
-HAZE_INLINE bool inside_box(vec3 x, vec3 bmin, vec3 bmax) { return all(greaterThanEqual(x, bmin)) && all(lessThanEqual(x, bmax)); }
+HAZE_INLINE bool inside_box(vec3 x, vec3 bmin, vec3 bmax) {
+  return all(greaterThanEqual(x, bmin)) && all(lessThanEqual(x, bmax));
+}
 
 // Far end of everything that holds a medium, seen from o along d (0 when nothing is hit).
 float media_exit(vec3 o, vec3 d) {
@@ -160,7 +164,8 @@ MajorantIter maj_init(vec3 o, vec3 d, float t0, float t1) {
 }
 
 // Next segment [t_a, t_b) with majorants split into heterogeneous and haze parts. False at the end.
-bool maj_next(INOUT(MajorantIter) it, OUT(float) sigma_het, OUT(float) sigma_haze, OUT(float) t_a, OUT(float) t_b) {
+bool maj_next(INOUT(MajorantIter) it, OUT(float) sigma_het, OUT(float) sigma_haze, OUT(float) t_a,
+              OUT(float) t_b) {
   sigma_het = 0.0f;
   sigma_haze = 0.0f;
   t_a = it.t;
@@ -203,7 +208,8 @@ bool maj_next(INOUT(MajorantIter) it, OUT(float) sigma_het, OUT(float) sigma_haz
     if (t_exit <= t_b) {
       t_b = t_exit;
       // Step the DDA into the next cell; leaving the grid ends its interval here.
-      int a = it.t_max.x <= it.t_max.y ? (it.t_max.x <= it.t_max.z ? 0 : 2) : (it.t_max.y <= it.t_max.z ? 1 : 2);
+      int a =
+          it.t_max.x <= it.t_max.y ? (it.t_max.x <= it.t_max.z ? 0 : 2) : (it.t_max.y <= it.t_max.z ? 1 : 2);
       it.cell[a] += it.step[a];
       it.t_max[a] += it.t_delta[a];
       if (it.cell[a] < 0 || it.cell[a] >= r[a]) it.g1 = t_exit;

@@ -4,20 +4,27 @@
 #extension GL_GOOGLE_include_directive : require
 layout(local_size_x = 64) in;
 
-#include "common/compat.glsl"
 #include "common/color.glsl"
+#include "common/compat.glsl"
 #include "volume/gpu_scene.glsl"
 
-layout(std430, binding = 0) readonly buffer AccumBuffer { float accum[]; };
-layout(std430, binding = 1) writeonly buffer OutBuffer { float outp[]; };
-layout(std430, binding = 2) writeonly buffer LdrBuffer { uint ldr[]; };
+layout(std430, binding = 0) readonly buffer AccumBuffer {
+  float accum[];
+};
+layout(std430, binding = 1) writeonly buffer OutBuffer {
+  float outp[];
+};
+layout(std430, binding = 2) writeonly buffer LdrBuffer {
+  uint ldr[];
+};
 
 layout(push_constant) uniform Push {
   uint pixels;
   uint samples;
   float exposure_scale;
   uint tonemap;  // 0 aces, 1 reinhard, 2 clamp
-} pc;
+}
+pc;
 
 void main() {
   uint p = gl_GlobalInvocationID.x;
@@ -31,7 +38,8 @@ void main() {
   for (uint c = 0u; c < 3u; ++c) outp[o + OUT_VAR + c] = var[c];
 
   vec3 x = mean * pc.exposure_scale;
-  vec3 m = pc.tonemap == 0u ? tonemap_aces(x) : (pc.tonemap == 1u ? tonemap_reinhard(x) : clamp(x, vec3(0.0f), vec3(1.0f)));
+  vec3 m = pc.tonemap == 0u ? tonemap_aces(x)
+                            : (pc.tonemap == 1u ? tonemap_reinhard(x) : clamp(x, vec3(0.0f), vec3(1.0f)));
   uvec3 c8 = uvec3(round(vec3(srgb_encode(m.r), srgb_encode(m.g), srgb_encode(m.b)) * 255.0f));
   ldr[p] = c8.r | (c8.g << 8u) | (c8.b << 16u) | (255u << 24u);
 }

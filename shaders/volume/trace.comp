@@ -10,36 +10,51 @@
 
 layout(local_size_x = 8, local_size_y = 8) in;
 
+#include "common/color.glsl"
 #include "common/compat.glsl"
 #include "common/rng.glsl"
 #include "common/sampling.glsl"
-#include "common/color.glsl"
 #include "volume/gpu_scene.glsl"
 
 #if HAZE_SUN || HAZE_ENV || HAZE_LOCAL
 #define HAZE_LIGHTS 1
 #endif
 
-layout(std430, binding = 0) readonly buffer SceneBuffer { GpuScene scene; };
-layout(std430, binding = 1) buffer AccumBuffer { float accum[]; };
+layout(std430, binding = 0) readonly buffer SceneBuffer {
+  GpuScene scene;
+};
+layout(std430, binding = 1) buffer AccumBuffer {
+  float accum[];
+};
 #if HAZE_LIGHTS
-layout(std430, binding = 2) readonly buffer LightBuffer { GpuLight lights[]; };
+layout(std430, binding = 2) readonly buffer LightBuffer {
+  GpuLight lights[];
+};
 #define BINDING_AFTER_LIGHTS 3
 #else
 #define BINDING_AFTER_LIGHTS 2
 #endif
 #if HAZE_HETERO
-layout(std430, binding = BINDING_AFTER_LIGHTS) readonly buffer NanoBuffer { uint pnanovdb_buf_data[]; };
-layout(std430, binding = BINDING_AFTER_LIGHTS + 1) readonly buffer MediaBuffer { GpuMedium media[]; };
-layout(std430, binding = BINDING_AFTER_LIGHTS + 2) readonly buffer MajorantBuffer { float majorant[]; };
+layout(std430, binding = BINDING_AFTER_LIGHTS) readonly buffer NanoBuffer {
+  uint pnanovdb_buf_data[];
+};
+layout(std430, binding = BINDING_AFTER_LIGHTS + 1) readonly buffer MediaBuffer {
+  GpuMedium media[];
+};
+layout(std430, binding = BINDING_AFTER_LIGHTS + 2) readonly buffer MajorantBuffer {
+  float majorant[];
+};
 #define PNANOVDB_GLSL
 #include "nanovdb/PNanoVDB.h"
 #endif
 
-layout(push_constant) uniform Push { uint sample_index; } pc;
+layout(push_constant) uniform Push {
+  uint sample_index;
+}
+pc;
 
-#include "volume/medium.glsl"
 #include "volume/lights.glsl"
+#include "volume/medium.glsl"
 
 const int ST_SURFACE = 0;  // ratio tracking T(0, t_s) for the surface term
 const int ST_CAMERA = 1;   // ratio tracking T(0, t_j) to a sampled distance, with the medium at t_j
@@ -82,10 +97,10 @@ void main() {
   float q_t0 = 0.0f, q_t1 = t_s;
   int q_mode = TRACK_RATIO;
   bool q_eval = false;
-  uint j = 0u;           // volume sample index
-  uint depth = 0u;       // scattering events so far
-  vec3 x = cam_o;        // current vertex
-  vec3 d = cam_d;        // direction the path travelled to reach x
+  uint j = 0u;      // volume sample index
+  uint depth = 0u;  // scattering events so far
+  vec3 x = cam_o;   // current vertex
+  vec3 d = cam_d;   // direction the path travelled to reach x
   vec3 beta = vec3(0.0f);
   vec3 pending = vec3(0.0f);
   float g = 0.0f;
@@ -195,7 +210,8 @@ void main() {
       float q = p_base > 0.0f ? p_base * mw.sigma * truncated_exp_pdf_tau(mw.tau, tau_total) : 0.0f;
 #if HAZE_LOCAL
       for (uint k = 0u; k < K; ++k)
-        q += p_ea / float(K) * equi_angular_pdf(equi_angular_setup(cam_o, cam_d, lights[k].position.xyz, 0.0f, t_s), t);
+        q += p_ea / float(K) *
+             equi_angular_pdf(equi_angular_setup(cam_o, cam_d, lights[k].position.xyz, 0.0f, t_s), t);
 #endif
       if (!(q > 0.0f)) {
         // A sample the mixture cannot produce again contributes nothing.
