@@ -5,6 +5,7 @@
 #include <CLI/CLI.hpp>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <iostream>
 
@@ -33,10 +34,12 @@ struct Progress {
   }
 };
 
-gpu::ContextOptions context_options(const std::string& device, bool validation) {
+gpu::ContextOptions context_options(const std::string& device, bool validation, const std::string& cache) {
   gpu::ContextOptions o;
   o.device = device;
   o.validation = validation;
+  o.pipeline_cache = cache;
+  if (const char* e = std::getenv("HAZE_PIPELINE_CACHE"); o.pipeline_cache.empty() && e) o.pipeline_cache = e;
   return o;
 }
 
@@ -91,6 +94,10 @@ int main(int argc, char** argv) {
   app.add_option("--device", device, "GPU by index or name substring (also $HAZE_DEVICE)");
   app.add_flag("--validation", validation, "enable the Vulkan validation layer (also $HAZE_VALIDATION=1)");
   app.add_flag("--list-devices", list_devices, "list Vulkan devices and exit");
+  std::string pipeline_cache;
+  app.add_option(
+      "--pipeline-cache", pipeline_cache,
+      "VkPipelineCache file to load and save (also $HAZE_PIPELINE_CACHE); speeds up start on real GPUs");
 
   auto* render = app.add_subcommand("render", "render a scene to EXR, PNG and stats.json");
   std::string scene_path, out_dir;
@@ -105,11 +112,12 @@ int main(int argc, char** argv) {
 
   auto* vdbcmd = app.add_subcommand("vdb", "make and inspect .vdb files");
   vdbcmd->require_subcommand(1);
-  auto* make = vdbcmd->add_subcommand("make", "write a procedural volume (box, sphere, cloud, height_fog)");
+  auto* make =
+      vdbcmd->add_subcommand("make", "write a procedural volume (box, sphere, cloud, height_fog, ramp)");
   std::string kind, vdb_out;
   haze::vdb::ProceduralSpec spec;
   std::vector<double> center, extent;
-  make->add_option("kind", kind, "box | sphere | cloud | height_fog")->required();
+  make->add_option("kind", kind, "box | sphere | cloud | height_fog | ramp")->required();
   make->add_option("--out", vdb_out, "output .vdb file")->required();
   make->add_option("--voxel-size", spec.voxel_size, "voxel size in world units");
   make->add_option("--center", center, "centre x y z")->expected(3);
@@ -139,7 +147,7 @@ int main(int argc, char** argv) {
   }
 
   try {
-    gpu::ContextOptions co = context_options(device, validation);
+    gpu::ContextOptions co = context_options(device, validation, pipeline_cache);
     if (list_devices) {
       for (const auto& d : gpu::list_devices()) fmt::print("{}\n", d.dump());
       return 0;

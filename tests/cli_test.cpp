@@ -183,4 +183,23 @@ TEST_F(Cli, VdbMakeAndInfo) {
   expect_one_line_error(run(fmt::format("vdb make blob --out {}", f)), "blob");
 }
 
+TEST_F(Cli, PipelineCacheFileIsWritten) {
+  std::string cache = (dir / "pipelines.bin").string();
+  auto r =
+      run(fmt::format("--pipeline-cache {} render {} --out {}", cache, small_scene(), (dir / "o").string()));
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_TRUE(fs::exists(cache));
+  auto again =
+      run(fmt::format("--pipeline-cache {} render {} --out {}", cache, small_scene(), (dir / "o").string()));
+  EXPECT_EQ(again.code, 0) << again.out;
+}
+
+TEST_F(Cli, WrongGridTypeIsNamed) {
+  // A scene that asks for a grid the file does not have: the error lists what is there.
+  std::string f = (dir / "cloud.vdb").string();
+  ASSERT_EQ(run(fmt::format("vdb make cloud --out {} --voxel-size 0.2 --size 2 2 2", f)).code, 0);
+  std::string s = write("s.json", R"({"media": [{"file": "cloud.vdb", "grid": "smoke"}]})");
+  expect_one_line_error(run(fmt::format("render {} --out {}", s, (dir / "o").string())), "smoke");
+}
+
 }  // namespace

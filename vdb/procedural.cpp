@@ -79,8 +79,9 @@ void validate(const ProceduralSpec& s, const std::string& where) {
     throw Error(fmt::format("{}: key '{}' {}", where, key, why));
   };
   auto finite3 = [](glm::dvec3 v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); };
-  if (s.kind != "box" && s.kind != "sphere" && s.kind != "cloud" && s.kind != "height_fog")
-    bad("kind", fmt::format("is '{}'; use one of box, sphere, cloud, height_fog", s.kind));
+  if (s.kind != "box" && s.kind != "sphere" && s.kind != "cloud" && s.kind != "height_fog" &&
+      s.kind != "ramp")
+    bad("kind", fmt::format("is '{}'; use one of box, sphere, cloud, height_fog, ramp", s.kind));
   if (!(s.voxel_size > 0) || !std::isfinite(s.voxel_size))
     bad("voxel_size", fmt::format("must be > 0, got {}", s.voxel_size));
   if (!finite3(s.center)) bad("center", "must be finite");
@@ -168,6 +169,13 @@ double procedural_value(const ProceduralSpec& s, glm::dvec3 p) {
     return (std::abs(d.x) <= h.x && std::abs(d.y) <= h.y && std::abs(d.z) <= h.z) ? s.density : 0.0;
   }
   if (s.kind == "sphere") return glm::length(d) <= s.size.x * 0.5 ? s.density : 0.0;
+  if (s.kind == "ramp") {
+    // Linear in y, 0 at the bottom face to `density` at the top: trilinear interpolation reproduces it
+    // exactly, which gives transmittance tests a closed form.
+    glm::dvec3 h = s.size * 0.5;
+    if (std::abs(d.x) > h.x || std::abs(d.y) > h.y || std::abs(d.z) > h.z) return 0.0;
+    return s.density * (d.y + h.y) / s.size.y;
+  }
   if (s.kind == "height_fog") {
     glm::dvec3 h = s.size * 0.5;
     if (std::abs(d.x) > h.x || std::abs(d.y) > h.y || std::abs(d.z) > h.z) return 0.0;

@@ -54,7 +54,7 @@ DeviceGrid load_grid(const std::string& path, const std::string& grid_name, NanP
 
 // Procedural volumes built with OpenVDB's tools. Voxel centres sit at integer multiples of voxel_size.
 struct ProceduralSpec {
-  std::string kind = "box";  // "box" | "sphere" | "cloud" | "height_fog"
+  std::string kind = "box";  // "box" | "sphere" | "cloud" | "height_fog" | "ramp" (linear in y)
   double voxel_size = 0.05;  // world units
   glm::dvec3 center{0};
   glm::dvec3 size{2};  // world extent (box/height_fog: full size; sphere/cloud: diameter in size.x)
