@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <functional>
 
 #include "render/renderer.hpp"
 #include "scene/scene.hpp"
@@ -28,10 +29,22 @@ nlohmann::json bench_scene(int w, int h, int spp) {
                                            w, h, spp));
 }
 
-double median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  return v[v.size() / 2];
+// Median GPU time of `reps` submissions of `record`, after one warm-up (lavapipe compiles on the first
+// dispatch).
+double timed_median(gpu::Context& ctx, int reps, const std::function<void(VkCommandBuffer)>& record) {
+  gpu::Timer timer(ctx, 4);
+  std::vector<double> ms;
+  for (int i = 0; i < reps + 1; ++i) {
+    ctx.submit_and_wait([&](VkCommandBuffer cmd) {
+      timer.reset(cmd);
+      timer.begin(cmd, "bench");
+      record(cmd);
+      timer.end(cmd);
+    });
+    double t = timer.read_ms().at(0).second;
+    if (i > 0) ms.push_back(t);
+  }
+  return render::median(ms);
 }
 
 // Median time of `reps` copies of `floats` floats (vec4 granularity).
@@ -41,20 +54,10 @@ double copy_ms(gpu::Context& ctx, size_t floats, int reps) {
   gpu::Buffer dst(ctx, "bench copy destination", "benchmark", vec4s * 16, "RGBA32F");
   src.fill_zero();
   gpu::ComputePipeline copy(ctx, render::spv_dir() + "/bench/copy.comp.0.spv", 2, 4);
-  gpu::Timer timer(ctx, 4);
-  std::vector<double> ms;
   uint32_t count = uint32_t(vec4s);
-  for (int i = 0; i < reps + 1; ++i) {
-    ctx.submit_and_wait([&](VkCommandBuffer cmd) {
-      timer.reset(cmd);
-      timer.begin(cmd, "copy");
-      copy.dispatch(cmd, {&src, &dst}, &count, (count + 63) / 64);
-      timer.end(cmd);
-    });
-    double t = timer.read_ms().at(0).second;
-    if (i > 0) ms.push_back(t);  // the first dispatch pays the LLVM compile on lavapipe
-  }
-  return median(ms);
+  return timed_median(ctx, reps, [&](VkCommandBuffer cmd) {
+    copy.dispatch(cmd, {&src, &dst}, &count, (count + 63) / 64);
+  });
 }
 
 }  // namespace
@@ -74,7 +77,7 @@ int run(const Options& o, const gpu::ContextOptions& co) {
   r.resolve();
   r.resolve();
   const auto& res = r.pass_stats().at("resolve").ms;
-  double t_trace = median(trace_ms), t_resolve = res.back();
+  double t_trace = render::median(trace_ms), t_resolve = res.back();
   size_t pixels = size_t(w) * h;
   double t_copy = copy_ms(ctx, pixels * glsl::ACC_STRIDE, std::max(o.spp, 3));
 
@@ -94,19 +97,9 @@ int run(const Options& o, const gpu::ContextOptions& co) {
   } push{uint32_t(pixels), 16};
   gpu::Buffer out(ctx, "bench lookup result", "benchmark", pixels * 4, "f32");
   gpu::ComputePipeline lookup(ctx, render::spv_dir() + "/bench/lookup.comp.0.spv", 5, 8);
-  gpu::Timer timer(ctx, 4);
-  std::vector<double> lk;
-  for (int i = 0; i < 4; ++i) {
-    ctx.submit_and_wait([&](VkCommandBuffer cmd) {
-      timer.reset(cmd);
-      timer.begin(cmd, "lookup");
-      lookup.dispatch(cmd, {&scene_buf, &nano, &media, &maj, &out}, &push, (push.count + 63) / 64);
-      timer.end(cmd);
-    });
-    double t = timer.read_ms().at(0).second;
-    if (i > 0) lk.push_back(t);
-  }
-  double t_lookup = median(lk);
+  double t_lookup = timed_median(ctx, 3, [&](VkCommandBuffer cmd) {
+    lookup.dispatch(cmd, {&scene_buf, &nano, &media, &maj, &out}, &push, (push.count + 63) / 64);
+  });
   double lookups = double(push.count) * push.lookups;
 
   nlohmann::json j;

@@ -17,6 +17,12 @@ std::string spv_dir() {
   return HAZE_DEFAULT_SPV_DIR;
 }
 
+double median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
+}
+
 nlohmann::json PassStats::to_json() const {
   std::vector<double> v = ms;
   std::sort(v.begin(), v.end());
@@ -26,7 +32,7 @@ nlohmann::json PassStats::to_json() const {
   j["count"] = v.size();
   j["total_ms"] = total;
   if (!v.empty()) {
-    j["median_ms"] = v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
+    j["median_ms"] = median(v);
     j["min_ms"] = v.front();
     j["max_ms"] = v.back();
   }

@@ -30,6 +30,9 @@ struct Image {
   }
 };
 
+// Median of a sample (the middle pair's mean for even sizes); 0 for an empty one.
+double median(std::vector<double> v);
+
 // Summary of per-pass GPU times over all submissions.
 struct PassStats {
   std::vector<double> ms;
