@@ -56,6 +56,7 @@ class Buffer {
   }
 
  private:
+  friend class Image;  // stages its transfers through Kind::Staging buffers
   enum class Kind { Storage, Staging };
   Buffer(Context& ctx, std::string name, std::string category, uint64_t bytes, std::string format, Kind kind);
   void create(Kind kind);

@@ -1,10 +1,11 @@
 #pragma once
-// haze's GPU layer: device, buffers, compute pipelines, timestamps, memory ledger. Knows nothing of
+// haze's GPU layer: device, buffers, images, compute pipelines, timestamps, memory ledger. Knows nothing of
 // rendering.
 
 #include "gpu/buffer.hpp"
 #include "gpu/context.hpp"
 #include "gpu/error.hpp"
+#include "gpu/image.hpp"
 #include "gpu/ledger.hpp"
 #include "gpu/pipeline.hpp"
 #include "gpu/timer.hpp"

@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <memory>
 #include <random>
 
@@ -17,10 +18,18 @@ namespace {
 #ifndef GPU_TEST_SPV
 #error "GPU_TEST_SPV (path of gpu_test_add.spv) must be defined by the build"
 #endif
+#ifndef GPU_TEST_IMAGE_SPV
+#error "GPU_TEST_IMAGE_SPV (path of gpu_test_image.spv) must be defined by the build"
+#endif
 
 struct AddPush {
   uint32_t n;
   float k;
+};
+
+struct ImagePush {
+  uint32_t width, height;
+  float bias;
 };
 
 // One Context and one pipeline per process: creating them is the slow part on lavapipe.
@@ -79,7 +88,29 @@ class Gpu : public ::testing::Test {
     for (auto& x : v) x = static_cast<float>(d(rng)) / 8.0f;  // exact in float: sums are exact too
     return v;
   }
+
+  // Finite, normal IEEE halves as raw bits: copies must keep them bit for bit.
+  static std::vector<uint16_t> random_halves(size_t n, uint32_t seed) {
+    std::mt19937 rng(seed);
+    std::uniform_int_distribution<uint32_t> sign(0, 1), exponent(1, 30), mantissa(0, 1023);
+    std::vector<uint16_t> v(n);
+    for (auto& h : v) h = static_cast<uint16_t>(sign(rng) << 15 | exponent(rng) << 10 | mantissa(rng));
+    return v;
+  }
+
+  static std::string error_of(const std::function<void()>& f) {
+    try {
+      f();
+    } catch (const Error& e) {
+      return e.what();
+    }
+    return "(no error)";
+  }
 };
+
+bool contains(const std::string& s, const std::string& part) {
+  return s.find(part) != std::string::npos;
+}
 
 TEST_F(Gpu, BufferRoundtrip) {
   auto data = random_floats(1000, 1);
@@ -488,6 +519,222 @@ TEST_F(Gpu, ValidationMessagesAreCounted) {
   EXPECT_GE(c.validation_messages(), 1u);
   ASSERT_FALSE(c.validation_log().empty());
   EXPECT_NE(c.validation_log()[0].find("VUID"), std::string::npos) << c.validation_log()[0];
+}
+
+TEST_F(Gpu, ImageRoundtripRgba32f) {
+  const uint32_t w = 37, h = 23;  // odd sizes: rows are tightly packed, no padding
+  auto data = random_floats(w * h * 4, 5);
+  Image img(ctx(), "radiance", "test", w, h, VK_FORMAT_R32G32B32A32_SFLOAT);
+  EXPECT_TRUE(img.valid());
+  EXPECT_NE(img.handle(), VK_NULL_HANDLE);
+  EXPECT_NE(img.view(), VK_NULL_HANDLE);
+  EXPECT_EQ(img.width(), w);
+  EXPECT_EQ(img.height(), h);
+  EXPECT_EQ(img.format(), VK_FORMAT_R32G32B32A32_SFLOAT);
+  EXPECT_EQ(img.format_name(), "RGBA32F");
+  EXPECT_EQ(img.bytes_per_pixel(), 16u);
+  EXPECT_EQ(img.size(), uint64_t{w} * h * 16);
+  EXPECT_EQ(img.name(), "radiance");
+  img.upload(data);
+  EXPECT_EQ(img.download_vector<float>(), data);
+
+  img.clear();
+  for (float x : img.download_vector<float>()) ASSERT_EQ(x, 0.0f);
+
+  std::string msg = error_of([&] { img.upload(data.data(), 16); });
+  EXPECT_TRUE(contains(msg, "'radiance'")) << msg;
+  EXPECT_TRUE(contains(msg, "RGBA32F 37x23")) << msg;
+  std::vector<float> small(4);
+  EXPECT_THROW(img.download(small.data(), 16), Error);
+}
+
+TEST_F(Gpu, ImageRoundtripRgba16fAndOtherFormats) {
+  const uint32_t w = 19, h = 7;
+  auto halves = random_halves(w * h * 4, 6);
+  Image img(ctx(), "history", "test", w, h, VK_FORMAT_R16G16B16A16_SFLOAT);
+  EXPECT_EQ(img.bytes_per_pixel(), 8u);
+  img.upload(halves);
+  EXPECT_EQ(img.download_vector<uint16_t>(), halves);
+
+  // One-channel float, integer and 8-bit formats move bit for bit as well.
+  auto floats = random_floats(w * h, 7);
+  Image r32f(ctx(), "r32f", "test", w, h, VK_FORMAT_R32_SFLOAT);
+  r32f.upload(floats);
+  EXPECT_EQ(r32f.download_vector<float>(), floats);
+  std::vector<uint32_t> words(w * h);
+  std::mt19937 rng(8);
+  for (auto& x : words) x = rng();
+  Image r32ui(ctx(), "r32ui", "test", w, h, VK_FORMAT_R32_UINT);
+  r32ui.upload(words);
+  EXPECT_EQ(r32ui.download_vector<uint32_t>(), words);
+  Image rgba8(ctx(), "rgba8", "test", w, h, VK_FORMAT_R8G8B8A8_UNORM);
+  EXPECT_EQ(rgba8.bytes_per_pixel(), 4u);
+  rgba8.upload(words);
+  EXPECT_EQ(rgba8.download_vector<uint32_t>(), words);
+}
+
+TEST_F(Gpu, ImageComputeMatchesCpu) {
+  const uint32_t w = 37, h = 21;  // not multiples of the 8x8 workgroup
+  ComputePipeline pipe(ctx(), GPU_TEST_IMAGE_SPV, {Slot::Image, Slot::Buffer, Slot::Image},
+                       sizeof(ImagePush));
+  EXPECT_EQ(pipe.local_size(), (std::array<uint32_t, 3>{8, 8, 1}));
+  EXPECT_EQ(pipe.num_buffers(), 1u);
+  EXPECT_EQ(pipe.slots(), (std::vector<Slot>{Slot::Image, Slot::Buffer, Slot::Image}));
+
+  auto in = random_floats(w * h * 4, 9), weights = random_floats(w, 10);
+  Image src(ctx(), "src", "test", w, h, VK_FORMAT_R32G32B32A32_SFLOAT),
+      dst(ctx(), "dst", "test", w, h, VK_FORMAT_R32G32B32A32_SFLOAT);
+  Buffer wbuf(ctx(), "weights", "test", w * 4, "f32");
+  src.upload(in);
+  wbuf.upload(weights);
+  dst.upload(random_floats(w * h * 4, 11));  // stale contents, cleared in the same submission
+  ImagePush push{w, h, 0.5f};
+  ctx().submit_and_wait([&](VkCommandBuffer cmd) {
+    dst.clear(cmd);
+    compute_barrier(cmd);
+    pipe.dispatch(cmd, {&src, &wbuf, &dst}, &push, div_up(w, 8), div_up(h, 8));
+  });
+  auto out = dst.download_vector<float>();
+  ASSERT_EQ(out.size(), in.size());
+  for (uint32_t y = 0; y < h; ++y)
+    for (uint32_t x = 0; x < w; ++x) {
+      size_t i = (size_t{y} * w + x) * 4;
+      float add[4] = {float(x), float(y), push.bias, 1.0f};
+      for (int c = 0; c < 4; ++c)
+        ASSERT_EQ(out[i + c], in[i + c] * weights[x] + add[c]) << "x=" << x << " y=" << y << " c=" << c;
+    }
+
+  // The span overload, and the output fed back in as the next input.
+  std::vector<Resource> resources = {&dst, &wbuf, &src};
+  ctx().submit_and_wait(
+      [&](VkCommandBuffer cmd) { pipe.dispatch(cmd, resources, &push, div_up(w, 8), div_up(h, 8)); });
+  auto twice = src.download_vector<float>();
+  for (uint32_t x = 0; x < w; ++x)
+    ASSERT_EQ(twice[x * 4 + 3], (in[x * 4 + 3] * weights[x] + 1.0f) * weights[x] + 1.0f) << "x=" << x;
+}
+
+TEST_F(Gpu, ImageLedgerEntryIsExactAndGoesAway) {
+  uint64_t before = ctx().ledger().total();
+  size_t entries_before = ctx().ledger().entries().size();
+  {
+    Image a(ctx(), "history", "previous-frame data", 640, 360, VK_FORMAT_R16G16B16A16_SFLOAT);
+    VkMemoryRequirements req;
+    vkGetImageMemoryRequirements(ctx().device(), a.handle(), &req);
+    ASSERT_EQ(ctx().ledger().entries().size(), entries_before + 1);
+    auto e = ctx().ledger().entries().back();
+    EXPECT_EQ(e.name, "history");
+    EXPECT_EQ(e.category, "previous-frame data");
+    EXPECT_EQ(e.format, "RGBA16F 640x360");
+    EXPECT_EQ(e.bytes, req.size);
+    EXPECT_EQ(e.bytes, a.allocated());
+    EXPECT_EQ(e.requested, 640u * 360u * 8u);
+    EXPECT_EQ(ctx().ledger().total(), before + req.size);
+
+    Image b(std::move(a));
+    EXPECT_FALSE(a.valid());  // NOLINT(bugprone-use-after-move): moved-from state is part of the contract
+    Image c;
+    c = std::move(b);
+    EXPECT_TRUE(c.valid());
+    EXPECT_EQ(c.name(), "history");
+    EXPECT_EQ(c.width(), 640u);
+    EXPECT_EQ(ctx().ledger().entries().size(), entries_before + 1);
+  }
+  EXPECT_EQ(ctx().ledger().total(), before);
+  EXPECT_EQ(ctx().ledger().entries().size(), entries_before);
+
+  // Transfers stage through a buffer that is in the ledger under "staging" only while it lives.
+  ContextOptions o;
+  o.validation = true;
+  Context fresh(o);
+  {
+    Image img(fresh, "staged image", "test", 64, 32, VK_FORMAT_R32_SFLOAT);
+    EXPECT_EQ(fresh.ledger().peak(), img.allocated());
+    img.upload(random_floats(64 * 32, 12));
+    EXPECT_GE(fresh.ledger().peak(), img.allocated() + img.size());
+    ASSERT_EQ(fresh.ledger().entries().size(), 1u);
+    EXPECT_EQ(fresh.ledger().per_category().count("staging"), 0u);
+  }
+  EXPECT_EQ(fresh.ledger().total(), 0u);
+  EXPECT_EQ(fresh.validation_messages(), 0u) << joined(fresh.validation_log());
+}
+
+TEST_F(Gpu, ImageFormatAndSizeErrorsAreClear) {
+  // Not in gpu::Image's table.
+  std::string msg = error_of([&] { Image(ctx(), "depth", "test", 8, 8, VK_FORMAT_D32_SFLOAT); });
+  EXPECT_TRUE(contains(msg, "'depth'")) << msg;
+  EXPECT_TRUE(contains(msg, "VkFormat(126)")) << msg;
+  EXPECT_TRUE(contains(msg, "RGBA16F")) << msg;  // lists what is supported
+  // In the table, but three-channel formats are (practically) never storage images.
+  VkFormatProperties fp;
+  vkGetPhysicalDeviceFormatProperties(ctx().physical(), VK_FORMAT_R32G32B32_SFLOAT, &fp);
+  if (!(fp.optimalTilingFeatures & VK_FORMAT_FEATURE_STORAGE_IMAGE_BIT)) {
+    msg = error_of([&] { Image(ctx(), "rgb", "test", 8, 8, VK_FORMAT_R32G32B32_SFLOAT); });
+    EXPECT_TRUE(contains(msg, "'rgb'")) << msg;
+    EXPECT_TRUE(contains(msg, "RGB32F")) << msg;
+    EXPECT_TRUE(contains(msg, "storage image")) << msg;
+    EXPECT_TRUE(contains(msg, ctx().device_name())) << msg;
+  }
+  msg = error_of([&] { Image(ctx(), "empty", "test", 0, 8, VK_FORMAT_R32_SFLOAT); });
+  EXPECT_TRUE(contains(msg, "'empty'")) << msg;
+  uint32_t too_wide = ctx().limits().maxImageDimension2D + 1;
+  msg = error_of([&] { Image(ctx(), "too wide", "test", too_wide, 1, VK_FORMAT_R32_SFLOAT); });
+  EXPECT_TRUE(contains(msg, "'too wide'")) << msg;
+  EXPECT_TRUE(contains(msg, "maxImageDimension2D")) << msg;
+  EXPECT_EQ(image_format_name(VK_FORMAT_R16G16B16A16_SFLOAT), "RGBA16F");
+  EXPECT_EQ(image_format_bytes(VK_FORMAT_R32_UINT), 4u);
+  EXPECT_EQ(image_format_bytes(VK_FORMAT_D32_SFLOAT), 0u);
+}
+
+TEST_F(Gpu, SlotAndResourceMismatchesAreClear) {
+  const std::string spv = GPU_TEST_IMAGE_SPV;
+  // At creation, from the SPIR-V: an image binding declared as a buffer, a buffer as an image, too few.
+  std::string msg = error_of([&] { ComputePipeline(ctx(), spv, 3, sizeof(ImagePush)); });
+  EXPECT_TRUE(contains(msg, spv)) << msg;
+  EXPECT_TRUE(contains(msg, "binding 0 as a storage image")) << msg;
+  msg = error_of([&] { ComputePipeline(ctx(), spv, {Slot::Image, Slot::Image, Slot::Image}, 12); });
+  EXPECT_TRUE(contains(msg, "binding 1 as a storage buffer")) << msg;
+  msg = error_of([&] { ComputePipeline(ctx(), spv, {Slot::Image, Slot::Buffer}, 12); });
+  EXPECT_TRUE(contains(msg, "binding 2")) << msg;
+  msg = error_of([&] { ComputePipeline(ctx(), GPU_TEST_SPV, {Slot::Buffer, Slot::Image, Slot::Buffer}, 8); });
+  EXPECT_TRUE(contains(msg, "binding 1 as a storage buffer")) << msg;
+
+  // At dispatch: the wrong kind of resource, a format other than the shader's, the wrong count.
+  ComputePipeline pipe(ctx(), spv, {Slot::Image, Slot::Buffer, Slot::Image}, sizeof(ImagePush));
+  Image a(ctx(), "in", "test", 8, 8, VK_FORMAT_R32G32B32A32_SFLOAT),
+      b(ctx(), "out", "test", 8, 8, VK_FORMAT_R32G32B32A32_SFLOAT),
+      half(ctx(), "half out", "test", 8, 8, VK_FORMAT_R16G16B16A16_SFLOAT);
+  Buffer wbuf(ctx(), "weights", "test", 8 * 4, "f32");
+  wbuf.fill_zero();
+  ImagePush push{8, 8, 0};
+  const auto dispatch_error = [&](std::vector<Resource> res) {
+    return error_of(
+        [&] { ctx().submit_and_wait([&](VkCommandBuffer cmd) { pipe.dispatch(cmd, res, &push, 1, 1); }); });
+  };
+  msg = dispatch_error({&wbuf, &wbuf, &b});
+  EXPECT_TRUE(contains(msg, spv)) << msg;
+  EXPECT_TRUE(contains(msg, "binding 0 is a storage image, but got buffer 'weights'")) << msg;
+  msg = dispatch_error({&a, &a, &b});
+  EXPECT_TRUE(contains(msg, "binding 1 is a storage buffer, but got image 'in'")) << msg;
+  msg = dispatch_error({&a, &wbuf, &half});
+  EXPECT_TRUE(contains(msg, "binding 2")) << msg;
+  EXPECT_TRUE(contains(msg, "RGBA32F")) << msg;
+  EXPECT_TRUE(contains(msg, "'half out' is RGBA16F")) << msg;
+  msg = dispatch_error({&a, &wbuf});
+  EXPECT_TRUE(contains(msg, "2 resources")) << msg;
+  msg = dispatch_error({&a, &wbuf, static_cast<const Image*>(nullptr)});
+  EXPECT_TRUE(contains(msg, "image 2 is empty")) << msg;
+  // A buffer-only pipeline refuses an image too.
+  AddPush add_push{16, 0};
+  msg = error_of([&] {
+    ctx().submit_and_wait([&](VkCommandBuffer cmd) {
+      add().dispatch(cmd, {&a, &wbuf, &wbuf}, &add_push, 1);
+    });
+  });
+  EXPECT_TRUE(contains(msg, GPU_TEST_SPV)) << msg;
+  EXPECT_TRUE(contains(msg, "binding 0 is a storage buffer, but got image 'in'")) << msg;
+
+  // Still usable after all the refusals.
+  ctx().submit_and_wait([&](VkCommandBuffer cmd) { pipe.dispatch(cmd, {&a, &wbuf, &b}, &push, 1, 1); });
 }
 
 }  // namespace

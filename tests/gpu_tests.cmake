@@ -1,16 +1,24 @@
 # gpu_test: the GPU layer on lavapipe with validation on. Included from tests/CMakeLists.txt.
+# Test shaders: tests/shaders/<name>.comp -> <build>/<name>.spv.
+set(GPU_TEST_SPVS)
+foreach(name gpu_test_add gpu_test_image)
+  set(spv ${CMAKE_CURRENT_BINARY_DIR}/${name}.spv)
+  add_custom_command(
+    OUTPUT ${spv}
+    COMMAND ${GLSLANG_VALIDATOR} -V --target-env vulkan1.3 -o ${spv}
+            ${CMAKE_CURRENT_LIST_DIR}/shaders/${name}.comp
+    DEPENDS ${CMAKE_CURRENT_LIST_DIR}/shaders/${name}.comp
+    COMMENT "GLSL tests/shaders/${name}.comp"
+    VERBATIM)
+  list(APPEND GPU_TEST_SPVS ${spv})
+endforeach()
 set(GPU_TEST_SPV ${CMAKE_CURRENT_BINARY_DIR}/gpu_test_add.spv)
-add_custom_command(
-  OUTPUT ${GPU_TEST_SPV}
-  COMMAND ${GLSLANG_VALIDATOR} -V --target-env vulkan1.3 -o ${GPU_TEST_SPV}
-          ${CMAKE_CURRENT_LIST_DIR}/shaders/gpu_test_add.comp
-  DEPENDS ${CMAKE_CURRENT_LIST_DIR}/shaders/gpu_test_add.comp
-  COMMENT "GLSL tests/shaders/gpu_test_add.comp"
-  VERBATIM)
+set(GPU_TEST_IMAGE_SPV ${CMAKE_CURRENT_BINARY_DIR}/gpu_test_image.spv)
 
-add_executable(gpu_test ${CMAKE_CURRENT_LIST_DIR}/gpu_test.cpp ${GPU_TEST_SPV})
+add_executable(gpu_test ${CMAKE_CURRENT_LIST_DIR}/gpu_test.cpp ${GPU_TEST_SPVS})
 target_link_libraries(gpu_test PRIVATE haze_gpu GTest::gtest_main)
-target_compile_definitions(gpu_test PRIVATE GPU_TEST_SPV="${GPU_TEST_SPV}")
+target_compile_definitions(gpu_test PRIVATE GPU_TEST_SPV="${GPU_TEST_SPV}"
+                                            GPU_TEST_IMAGE_SPV="${GPU_TEST_IMAGE_SPV}")
 
 # One process for all cases: the Context and pipelines are created once (see DESIGN.md section 8).
 add_test(NAME gpu_test COMMAND gpu_test)
