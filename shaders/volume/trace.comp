@@ -102,7 +102,8 @@ void main() {
   vec3 x = cam_o;   // current vertex
   vec3 d = cam_d;   // direction the path travelled to reach x
   vec3 beta = vec3(0.0f);
-  vec3 pending = vec3(0.0f);
+  vec3 pending = vec3(0.0f);  // NEE contribution waiting for its shadow-ray transmittance
+  float q_j = 1.0f;           // q(t_j) of the current distance sample
   float g = 0.0f;
 
   for (;;) {
@@ -116,7 +117,7 @@ void main() {
       next_sample = true;
     } else if (state == ST_CAMERA) {
       // r.T = T(0,t_j) estimate; the camera-ray contribution is T sigma (...) / q(t_j), averaged over N.
-      float w = r.T * r.ms.sigma_t / (pending.x * float(N));
+      float w = r.T * r.ms.sigma_t / (q_j * float(N));
       L_vol += w * r.ms.emit;
       if (max_depth > 0u && w > 0.0f) {
         beta = vec3(w) * r.ms.albedo;
@@ -217,7 +218,7 @@ void main() {
         // A sample the mixture cannot produce again contributes nothing.
         q = T_INF;
       }
-      pending = vec3(q);
+      q_j = q;
       x = cam_o + cam_d * t;
       d = cam_d;
       q_o = cam_o;
