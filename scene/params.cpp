@@ -260,6 +260,27 @@ json write_vec3(const glm::vec3& v) {
   return json::array({write_float(v.x), write_float(v.y), write_float(v.z)});
 }
 
+bool split_path(std::string_view path, std::vector<std::string>& segs) {
+  // Accept the bracket form that error messages print, media[0].g, as well as media.0.g.
+  std::string dotted;
+  for (char ch : trim(path)) {
+    if (ch == '[')
+      dotted += '.';
+    else if (ch != ']')
+      dotted += ch;
+  }
+  segs.clear();
+  size_t start = 0;
+  while (true) {
+    size_t dot = dotted.find('.', start);
+    std::string seg = dotted.substr(start, dot == std::string::npos ? std::string::npos : dot - start);
+    if (seg.empty()) return false;
+    segs.push_back(seg);
+    if (dot == std::string::npos) return true;
+    start = dot + 1;
+  }
+}
+
 Override parse_assignment(std::string_view assignment, std::string_view origin, std::string& value) {
   Override o;
   o.assignment = std::string(assignment);
@@ -270,25 +291,10 @@ Override parse_assignment(std::string_view assignment, std::string_view origin, 
                             assignment));
   }
   value = trim(assignment.substr(eq + 1));
-  // Accept the bracket form that error messages print, media[0].g, as well as media.0.g.
-  std::string path;
-  for (char ch : trim(assignment.substr(0, eq))) {
-    if (ch == '[')
-      path += '.';
-    else if (ch != ']')
-      path += ch;
-  }
-  size_t start = 0;
-  while (true) {
-    size_t dot = path.find('.', start);
-    std::string seg = path.substr(start, dot == std::string::npos ? std::string::npos : dot - start);
-    if (seg.empty()) {
-      throw Error(fmt::format("{}: --set {}: the path \"{}\" has an empty part; write it as a.b.c", o.origin,
-                              assignment, path));
-    }
-    o.segs.push_back(seg);
-    if (dot == std::string::npos) break;
-    start = dot + 1;
+  std::string path = trim(assignment.substr(0, eq));
+  if (!split_path(path, o.segs)) {
+    throw Error(fmt::format("{}: --set {}: the path \"{}\" has an empty part; write it as a.b.c", o.origin,
+                            assignment, path));
   }
   return o;
 }

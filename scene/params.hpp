@@ -326,7 +326,9 @@ std::string type_name() {
     return "[x, y, z]";
   else if constexpr (std::is_same_v<T, std::vector<std::string>>)
     return "list of strings";
-  else if constexpr (std::is_same_v<T, json> || std::is_same_v<T, std::optional<json>>)
+  else if constexpr (std::is_same_v<T, json>)
+    return "JSON value";
+  else if constexpr (std::is_same_v<T, std::optional<json>>)
     return "JSON object";
   else if constexpr (Reflectable<T>)
     return "object";
@@ -389,6 +391,8 @@ struct Override {
   Target target = Target::Object;
 };
 
+// Splits "a.b[2].c" (or "a.b.2.c") into "a", "b", "2", "c"; false if a part is empty.
+bool split_path(std::string_view path, std::vector<std::string>& segs);
 // Splits "a.b[2].c=v" into segments and value; throws on a malformed assignment.
 Override parse_assignment(std::string_view assignment, std::string_view origin, std::string& value);
 [[noreturn]] void override_fail(const Override& o, std::string_view path, std::string_view what);
@@ -459,7 +463,10 @@ void resolve_value(Override& o, size_t pos) {
       return;
     }
     long long i = parse_index(o, pos, vec3 ? 3 : -1);
-    o.json_path += "[" + std::to_string(i) + "]";
+    // Appended piecewise: GCC 12 warns falsely (-Wrestrict) about "[" + std::to_string(i) + "]" here.
+    o.json_path += '[';
+    o.json_path += std::to_string(i);
+    o.json_path += ']';
     o.steps.push_back(Step::Index);
     if constexpr (vec3) {
       if (pos + 1 != o.segs.size()) no_members("number", pos + 1);

@@ -11,6 +11,8 @@
 #include <glm/gtc/matrix_transform.hpp>
 #include <sstream>
 
+#include "scene/animation.hpp"
+
 namespace haze::scene {
 
 using nlohmann::json;
@@ -88,6 +90,13 @@ void validate(Medium& m, const Where& w) {
     }
   }
   if (m.grid.empty()) w.fail("grid", "must name a float grid, e.g. \"density\"");
+  size_t runs = 0;
+  for (size_t i = 0; i < m.file.size(); ++i) runs += m.file[i] == '#' && (i == 0 || m.file[i - 1] != '#');
+  if (runs > 1) {
+    w.fail("file", fmt::format("\"{}\" has {} runs of '#'; a sequence has one, the frame number, as in "
+                               "smoke_####.vdb",
+                               m.file, runs));
+  }
 }
 
 void validate(Haze& h, const Where& w) {
@@ -117,6 +126,30 @@ void validate(RenderSettings& r, const Where& w) {
       w.fail(fmt::format("outputs[{}]", i), "\"" + r.outputs[i] + "\" is listed twice; list it once");
     }
   }
+  std::pair<int, int> range;
+  std::string error;
+  if (!r.frames.empty() && !detail::parse_frame_range(r.frames, range, error)) w.fail("frames", error);
+}
+
+void validate(Key& k, const Where& w) {
+  if (k.frame < 0) w.fail("frame", "missing; give the key's frame number, e.g. \"frame\": 0");
+  if (k.value.is_null()) {
+    w.fail("value", "missing; give the value at this frame, a number or [x, y, z] like the animated path");
+  }
+}
+
+void validate(Track& t, const Where& w) {
+  if (t.path.empty()) w.fail("path", "missing; name the animated value, e.g. \"camera.position\"");
+  if (t.keys.empty()) w.fail("keys", "is empty; give at least one key {\"frame\": F, \"value\": V}");
+  for (size_t k = 1; k < t.keys.size(); ++k) {
+    if (t.keys[k].frame <= t.keys[k - 1].frame) {
+      w.fail(
+          fmt::format("keys[{}].frame", k),
+          fmt::format("must be greater than keys[{}].frame ({}), got {}; list keys in frame order, one per "
+                      "frame",
+                      k - 1, t.keys[k - 1].frame, t.keys[k].frame));
+    }
+  }
 }
 
 namespace {
@@ -131,6 +164,7 @@ Scene read_scene(const json& j, const ReadContext& ctx, const std::string& base_
       m.file = (fs::path(base_dir) / m.file).lexically_normal().string();
     }
   }
+  detail::check_animation(s, ctx);
   return s;
 }
 
@@ -206,12 +240,14 @@ Scene load(const std::string& path, const std::vector<std::string>& overrides) {
   s.path = path;
   for (size_t i = 0; i < s.media.size(); ++i) {
     const std::string& f = s.media[i].file;
-    if (!f.empty() && !fs::is_regular_file(f, ec)) {
+    if (!f.empty() && !is_sequence(f) && !fs::is_regular_file(f, ec)) {
       ctx.fail(
           fmt::format("media[{}].file", i),
           fmt::format("no such file: {} (relative paths start at the scene file's folder {})", f, base_dir));
     }
   }
+  auto [first, last] = frame_range(s);
+  detail::check_frame_files(s, first, last, ctx);
   return s;
 }
 

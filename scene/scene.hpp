@@ -14,6 +14,9 @@
 
 namespace haze::scene {
 
+// Frames are numbered 0..kMaxFrame (keys, render.frames, --frames).
+inline constexpr int kMaxFrame = 9'999'999;
+
 struct Camera {
   glm::vec3 position{0, 1, 5};
   glm::vec3 target{0, 1, 0};
@@ -38,7 +41,9 @@ struct Emission {
 
 // One VDB medium.
 struct Medium {
-  std::string file;  // a .vdb; relative paths are resolved against Scene::base_dir on load...
+  // A .vdb; relative paths are resolved against Scene::base_dir on load. A run of '#' makes it a
+  // sequence: "smoke_####.vdb" is smoke_0007.vdb at frame 7 (scene/animation.hpp)...
+  std::string file;
   std::optional<nlohmann::json> procedural;  // ...or a procedural spec {"kind": ...} checked by vdb/
   std::string grid = "density";
   float density_scale = 1.f;  // >= 0
@@ -107,8 +112,29 @@ struct RenderSettings {
   bool pixel_jitter = true;              // random position inside the pixel (off: pixel centres)
   float equiangular_probability = 0.5f;  // share of equi-angular sampling when point/spot lights exist
   float rr_threshold = 0.1f;             // Russian roulette on ratio-tracked transmittance below this
+  std::string frames;  // "A:B", both included; "" = the animation's first to last key (0:0 without one)
+  float fps = 24.f;    // time base: frame k is at k / fps seconds
 
   bool wants(std::string_view output) const;  // is `output` listed in outputs
+};
+
+// One keyframe. `value` is a number or [x, y, z], as the track's target; checked against the scene.
+struct Key {
+  int frame = -1;  // required; -1 marks it absent
+  nlohmann::json value;
+};
+
+// Keyframes for one number or [x, y, z] of the scene, addressed by its dotted path as in --set
+// ("camera.position", "media[0].transform.rotate", "lights.sun.irradiance", "camera.position.1").
+struct Track {
+  std::string path;
+  std::string interpolation = "linear";  // linear | smooth
+  std::vector<Key> keys;                 // frames strictly increasing; held before the first, after the last
+};
+
+// Evaluated per frame by scene_at_frame (scene/animation.hpp).
+struct Animation {
+  std::vector<Track> tracks;
 };
 
 struct Scene {
@@ -117,15 +143,18 @@ struct Scene {
   std::optional<Haze> haze;
   Lights lights;
   RenderSettings render;
+  std::optional<Animation> animation;
   std::string path;      // the file it came from (for messages), "" if from memory
   std::string base_dir;  // folder used to resolve relative file paths
 };
 
 // Reads a scene file. `overrides` are "dotted.path=value" assignments applied to the JSON before it is
-// read (see apply_override). Relative media files are resolved against the file's folder and must exist.
+// read (see apply_override). Relative media files are resolved against the file's folder and must exist
+// (a sequence: for every frame of frame_range). An animated scene is checked at every frame of that range;
+// render a frame with scene_at_frame (scene/animation.hpp).
 Scene load(const std::string& path, const std::vector<std::string>& overrides = {});
 // `origin` names the source in messages; relative media files are resolved against `base_dir` (if
-// nonempty) but not checked for existence.
+// nonempty) but not checked for existence. Animation is checked as in load.
 Scene from_json(const nlohmann::json& j, const std::string& origin, const std::string& base_dir);
 // Every setting, defaults included: what stats.json records. from_json(to_json(s)) reproduces s.
 nlohmann::json to_json(const Scene& s);
@@ -146,6 +175,8 @@ void validate(Haze& h, const Where& w);
 void validate(Sun& s, const Where& w);
 void validate(SpotLight& s, const Where& w);
 void validate(RenderSettings& r, const Where& w);
+void validate(Key& k, const Where& w);
+void validate(Track& t, const Where& w);
 
 template <class V>
 void reflect(V& v, Camera& c) {
@@ -174,7 +205,9 @@ void reflect(V& v, Emission& e) {
 
 template <class V>
 void reflect(V& v, Medium& m) {
-  v.field("file", m.file, ".vdb file, relative to the scene file's folder; exactly one of file/procedural");
+  v.field("file", m.file,
+          ".vdb file, relative to the scene file's folder; a run of # is the frame number (a sequence); "
+          "exactly one of file/procedural");
   v.field("procedural", m.procedural,
           "procedural volume spec {\"kind\": ...}; exactly one of file/procedural");
   v.field("grid", m.grid, "name of the float density grid");
@@ -254,6 +287,29 @@ void reflect(V& v, RenderSettings& r) {
           "mixture weight of equi-angular distance sampling (scenes with point or spot lights)");
   v.field("rr_threshold", r.rr_threshold, Range{0, 1},
           "Russian roulette on ratio-tracked transmittance below this value (0: off)");
+  v.field(
+      "frames", r.frames,
+      "frames to render, \"A:B\" with both included; \"\": the animation's first to last key (0:0 without)");
+  v.field("fps", r.fps, Range{0, 1000, true}, "frames per second: frame k is at time k / fps seconds");
+}
+
+template <class V>
+void reflect(V& v, Key& k) {
+  v.field("frame", k.frame, Range{0, kMaxFrame}, "frame number (required)");
+  v.field("value", k.value, "value at this frame: a number or [x, y, z], like the target");
+}
+
+template <class V>
+void reflect(V& v, Track& t) {
+  v.field("path", t.path, "dotted path of the animated number or [x, y, z], e.g. \"camera.position\"");
+  v.field("interpolation", t.interpolation, Choices{"linear", "smooth"},
+          "linear; smooth: monotone cubic, eased at the first and last key, no overshoot");
+  v.field("keys", t.keys, "keyframes {\"frame\": F, \"value\": V} in increasing frame order");
+}
+
+template <class V>
+void reflect(V& v, Animation& a) {
+  v.field("tracks", a.tracks, "one track per animated value");
 }
 
 template <class V>
@@ -263,6 +319,7 @@ void reflect(V& v, Scene& s) {
   v.field("haze", s.haze, "homogeneous fog");
   v.field("lights", s.lights, "light sources");
   v.field("render", s.render, "render settings");
+  v.field("animation", s.animation, "keyframed tracks; frames of a VDB sequence come from media[].file");
 }
 
 }  // namespace haze::scene

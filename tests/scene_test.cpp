@@ -406,7 +406,7 @@ TEST(SceneDocs, ExamplesLoad) {
     EXPECT_NO_THROW(hs::from_json(j, label, "/base")) << label;
     at = end + 3;
   }
-  EXPECT_GE(examples, 6);
+  EXPECT_GE(examples, 8);
 }
 
 // ---- the reflection works for any struct, not only the scene ----
