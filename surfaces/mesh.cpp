@@ -1,0 +1,178 @@
+#include "surfaces/mesh.hpp"
+
+#include <fmt/format.h>
+#include <tiny_obj_loader.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <unordered_map>
+
+namespace haze::surfaces {
+namespace {
+
+bool finite(glm::vec3 v) {
+  return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
+}
+
+std::string first_line(const std::string& s) {
+  std::string line = s.substr(0, s.find('\n'));
+  while (!line.empty() && (line.back() == '\r' || line.back() == ' ')) line.pop_back();
+  return line;
+}
+
+// An OBJ face corner: position, uv and normal indices (-1: absent).
+struct Corner {
+  int v, vt, vn;
+  bool operator==(const Corner&) const = default;
+};
+struct CornerHash {
+  size_t operator()(const Corner& c) const {
+    uint64_t h = uint64_t(uint32_t(c.v)) * 0x9E3779B97F4A7C15ull;
+    h ^= (uint64_t(uint32_t(c.vt)) + 0x632BE59BD9B4E019ull + (h << 6) + (h >> 2));
+    h ^= (uint64_t(uint32_t(c.vn)) * 0xC2B2AE3D27D4EB4Full + (h << 6) + (h >> 2));
+    return size_t(h);
+  }
+};
+
+}  // namespace
+
+MeshStats drop_bad_triangles(Mesh& mesh) {
+  const size_t n = mesh.positions.size();
+  if (!mesh.normals.empty() && mesh.normals.size() != n)
+    throw Error(fmt::format("mesh: {} normals for {} positions (give one per position or none)",
+                            mesh.normals.size(), n));
+  if (!mesh.uvs.empty() && mesh.uvs.size() != n)
+    throw Error(
+        fmt::format("mesh: {} uvs for {} positions (give one per position or none)", mesh.uvs.size(), n));
+  MeshStats stats;
+  std::vector<glm::uvec3> kept;
+  kept.reserve(mesh.triangles.size());
+  for (size_t i = 0; i < mesh.triangles.size(); ++i) {
+    glm::uvec3 t = mesh.triangles[i];
+    for (int k = 0; k < 3; ++k)
+      if (t[k] >= n) throw Error(fmt::format("mesh: triangle {} refers to vertex {} of {}", i, t[k], n));
+    glm::vec3 a = mesh.positions[t.x], b = mesh.positions[t.y], c = mesh.positions[t.z];
+    if (!finite(a) || !finite(b) || !finite(c)) {
+      ++stats.dropped_nonfinite;
+      continue;
+    }
+    // Double precision: float edges of a valid sliver could cancel to zero, doubles of float inputs
+    // cancel only for truly collinear points.
+    glm::dvec3 cr = glm::cross(glm::dvec3(b) - glm::dvec3(a), glm::dvec3(c) - glm::dvec3(a));
+    if (cr == glm::dvec3(0.0)) {
+      ++stats.dropped_degenerate;
+      continue;
+    }
+    kept.push_back(t);
+  }
+  mesh.triangles = std::move(kept);
+  stats.triangles = mesh.triangles.size();
+  return stats;
+}
+
+Mesh load_obj(const std::string& path, MeshStats* stats) {
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) throw Error(fmt::format("{}: no such file (check the path)", path));
+  if (!std::filesystem::is_regular_file(path, ec))
+    throw Error(fmt::format("{}: not a regular file (give the path of an .obj file)", path));
+  std::ifstream in(path);
+  if (!in) throw Error(fmt::format("{}: cannot be opened (check its permissions)", path));
+
+  tinyobj::attrib_t attrib;
+  std::vector<tinyobj::shape_t> shapes;
+  std::vector<tinyobj::material_t> materials;
+  std::string warn, err;
+  // No material reader: materials are not used, and a missing .mtl must not fail the mesh.
+  if (!tinyobj::LoadObj(&attrib, &shapes, &materials, &warn, &err, &in, nullptr, true))
+    throw Error(fmt::format("{}: malformed OBJ: {} (fix or re-export the file)", path, first_line(err)));
+  if (warn.find("Degenerated face") != std::string::npos)
+    throw Error(fmt::format(
+        "{}: malformed OBJ: a face with fewer than 3 vertices (fix or re-export the file)", path));
+
+  const int nv = int(attrib.vertices.size() / 3), nt = int(attrib.texcoords.size() / 2),
+            nn = int(attrib.normals.size() / 3);
+  bool has_uv = true, has_normal = true;
+  size_t corners = 0;
+  for (const auto& shape : shapes) {
+    for (const auto& idx : shape.mesh.indices) {
+      if (idx.vertex_index < 0 || idx.vertex_index >= nv)
+        throw Error(
+            fmt::format("{}: malformed OBJ: a face refers to vertex {} but the file has {} (fix or "
+                        "re-export the file)",
+                        path, idx.vertex_index + 1, nv));
+      if (idx.texcoord_index >= nt || idx.normal_index >= nn)
+        throw Error(
+            fmt::format("{}: malformed OBJ: a face refers to a missing uv or normal (fix or "
+                        "re-export the file)",
+                        path));
+      has_uv &= idx.texcoord_index >= 0;
+      has_normal &= idx.normal_index >= 0;
+    }
+    corners += shape.mesh.indices.size();
+  }
+  if (corners < 3)
+    throw Error(
+        fmt::format("{}: no triangles (no faces with 3 or more vertices; export the mesh with faces)", path));
+
+  Mesh mesh;
+  std::unordered_map<Corner, uint32_t, CornerHash> vertex_of;
+  auto vertex = [&](const tinyobj::index_t& idx) {
+    Corner c{idx.vertex_index, has_uv ? idx.texcoord_index : -1, has_normal ? idx.normal_index : -1};
+    auto [it, inserted] = vertex_of.try_emplace(c, uint32_t(mesh.positions.size()));
+    if (inserted) {
+      const float* p = &attrib.vertices[3 * size_t(c.v)];
+      mesh.positions.emplace_back(p[0], p[1], p[2]);
+      if (has_uv)
+        mesh.uvs.emplace_back(attrib.texcoords[2 * size_t(c.vt)], attrib.texcoords[2 * size_t(c.vt) + 1]);
+      if (has_normal) {
+        const float* q = &attrib.normals[3 * size_t(c.vn)];
+        mesh.normals.emplace_back(q[0], q[1], q[2]);
+      }
+    }
+    return it->second;
+  };
+  for (const auto& shape : shapes) {
+    const auto& ix = shape.mesh.indices;  // triangulated: three corners per face
+    for (size_t i = 0; i + 2 < ix.size(); i += 3)
+      mesh.triangles.emplace_back(vertex(ix[i]), vertex(ix[i + 1]), vertex(ix[i + 2]));
+  }
+
+  MeshStats s = drop_bad_triangles(mesh);
+  if (s.triangles == 0)
+    throw Error(
+        fmt::format("{}: no valid triangles: all {} have NaN/Inf vertices or zero area (fix the mesh)", path,
+                    s.dropped()));
+  if (stats) *stats = s;
+  return mesh;
+}
+
+void append(Mesh& dst, const Mesh& src, const glm::mat4& transform) {
+  const bool first = dst.positions.empty();
+  const bool normals = !src.normals.empty() && (first || !dst.normals.empty());
+  const bool uvs = !src.uvs.empty() && (first || !dst.uvs.empty());
+  if (!normals) dst.normals.clear();
+  if (!uvs) dst.uvs.clear();
+  const uint32_t base = uint32_t(dst.positions.size());
+  const glm::mat3 normal_matrix = glm::transpose(glm::inverse(glm::mat3(transform)));
+  for (size_t i = 0; i < src.positions.size(); ++i) {
+    dst.positions.push_back(glm::vec3(transform * glm::vec4(src.positions[i], 1.0f)));
+    if (normals) dst.normals.push_back(glm::normalize(normal_matrix * src.normals[i]));
+    if (uvs) dst.uvs.push_back(src.uvs[i]);
+  }
+  // A mirroring transform reverses the winding; swapping two corners keeps the front where the normals are.
+  const bool mirror = glm::determinant(glm::mat3(transform)) < 0;
+  for (glm::uvec3 t : src.triangles)
+    dst.triangles.push_back(mirror ? glm::uvec3(t.x, t.z, t.y) + base : t + base);
+}
+
+double surface_area(const Mesh& mesh) {
+  double area = 0;
+  for (glm::uvec3 t : mesh.triangles) {
+    glm::dvec3 a = mesh.positions[t.x], b = mesh.positions[t.y], c = mesh.positions[t.z];
+    area += 0.5 * glm::length(glm::cross(b - a, c - a));
+  }
+  return area;
+}
+
+}  // namespace haze::surfaces
