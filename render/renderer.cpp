@@ -39,49 +39,70 @@ nlohmann::json PassStats::to_json() const {
   return j;
 }
 
-Renderer::Renderer(gpu::Context& ctx, const scene::Scene& s) : ctx_(ctx), scene_(s) {
+Renderer::Renderer(gpu::Context& ctx, const scene::Scene& s, uint32_t frame) : ctx_(ctx), scene_(s) {
+  timer_ = std::make_unique<gpu::Timer>(ctx, 16);
+  set_scene(s, frame);
+}
+
+const gpu::ComputePipeline* Renderer::pipeline(const std::string& spv, uint32_t num_buffers,
+                                               uint32_t push_bytes) {
+  auto& p = pipelines_[spv];
+  if (!p) {
+    p = std::make_unique<gpu::ComputePipeline>(ctx_, spv, num_buffers, push_bytes);
+    pipeline_ms_ += p->creation_ms();
+  }
+  return p.get();
+}
+
+void Renderer::ensure(gpu::Buffer& b, const char* name, const char* category, uint64_t bytes,
+                      const std::string& format) {
+  if (!b.valid() || b.size() != bytes) b = gpu::Buffer(ctx_, name, category, bytes, format);
+}
+
+void Renderer::set_scene(const scene::Scene& s, uint32_t frame) {
+  scene_ = s;
   features_ = volume::features_of(s);
-  media_ = volume::build_media(s);
+  media_ = volume::build_media(s, &media_);
   std::vector<glsl::GpuLight> lights = volume::build_lights(s);
   num_lights_ = lights.size();
   size_t num_local = s.lights.points.size() + s.lights.spots.size();
-  glsl::GpuScene gs = volume::build_gpu_scene(s, media_, lights.size(), num_local);
+  glsl::GpuScene gs = volume::build_gpu_scene(s, media_, lights.size(), num_local, frame);
   size_t pixels = size_t(s.render.width) * s.render.height;
 
-  scene_buf_ = gpu::Buffer(ctx, "scene", "scene data", sizeof(gs), "GpuScene");
+  ensure(scene_buf_, "scene", "scene data", sizeof(gs), "GpuScene");
   scene_buf_.upload(&gs, sizeof(gs));
-  accum_buf_ = gpu::Buffer(ctx, "accumulation", "per-frame temporaries", pixels * glsl::ACC_STRIDE * 4,
-                           fmt::format("{} x f32 per pixel", glsl::ACC_STRIDE));
+  ensure(accum_buf_, "accumulation", "per-frame temporaries", pixels * glsl::ACC_STRIDE * 4,
+         fmt::format("{} x f32 per pixel", glsl::ACC_STRIDE));
   accum_buf_.fill_zero();
-  out_buf_ = gpu::Buffer(ctx, "resolved layers", "outputs", pixels * glsl::OUT_STRIDE * 4,
-                         fmt::format("{} x f32 per pixel", glsl::OUT_STRIDE));
-  ldr_buf_ = gpu::Buffer(ctx, "preview", "outputs", pixels * 4, "RGBA8");
+  samples_ = 0;
+  ensure(out_buf_, "resolved layers", "outputs", pixels * glsl::OUT_STRIDE * 4,
+         fmt::format("{} x f32 per pixel", glsl::OUT_STRIDE));
+  ensure(ldr_buf_, "preview", "outputs", pixels * 4, "RGBA8");
   // Buffers exist only for the features the scene uses.
   if (features_.lights()) {
-    lights_buf_ =
-        gpu::Buffer(ctx, "lights", "scene data", lights.size() * sizeof(glsl::GpuLight), "GpuLight");
+    ensure(lights_buf_, "lights", "scene data", lights.size() * sizeof(glsl::GpuLight), "GpuLight");
     lights_buf_.upload(lights);
+  } else {
+    lights_buf_ = gpu::Buffer();
   }
   if (features_.hetero) {
-    nanovdb_buf_ = gpu::Buffer(ctx, "nanovdb grids", "scene data", media_.nanovdb.size() * 4, "NanoVDB");
+    ensure(nanovdb_buf_, "nanovdb grids", "scene data", media_.nanovdb.size() * 4, "NanoVDB");
     nanovdb_buf_.upload(media_.nanovdb);
-    media_buf_ =
-        gpu::Buffer(ctx, "media", "scene data", media_.media.size() * sizeof(glsl::GpuMedium), "GpuMedium");
+    ensure(media_buf_, "media", "scene data", media_.media.size() * sizeof(glsl::GpuMedium), "GpuMedium");
     media_buf_.upload(media_.media);
-    majorant_buf_ = gpu::Buffer(
-        ctx, "majorant grid", "scene data", media_.majorant.sigma_max.size() * 4,
-        fmt::format("f32 {}x{}x{}", media_.majorant.res.x, media_.majorant.res.y, media_.majorant.res.z));
+    ensure(majorant_buf_, "majorant grid", "scene data", media_.majorant.sigma_max.size() * 4,
+           fmt::format("f32 {}x{}x{}", media_.majorant.res.x, media_.majorant.res.y, media_.majorant.res.z));
     majorant_buf_.upload(media_.majorant.sigma_max);
+  } else {
+    nanovdb_buf_ = gpu::Buffer();
+    media_buf_ = gpu::Buffer();
+    majorant_buf_ = gpu::Buffer();
   }
 
   uint32_t num_buffers = 2 + (features_.lights() ? 1 : 0) + (features_.hetero ? 3 : 0);
   std::string dir = spv_dir();
-  trace_ = std::make_unique<gpu::ComputePipeline>(
-      ctx, fmt::format("{}/volume/trace.comp.{}.spv", dir, features_.mask()), num_buffers, 4);
-  resolve_ =
-      std::make_unique<gpu::ComputePipeline>(ctx, fmt::format("{}/volume/resolve.comp.0.spv", dir), 3, 16);
-  pipeline_ms_ = trace_->creation_ms() + resolve_->creation_ms();
-  timer_ = std::make_unique<gpu::Timer>(ctx, 16);
+  trace_ = pipeline(fmt::format("{}/volume/trace.comp.{}.spv", dir, features_.mask()), num_buffers, 4);
+  resolve_ = pipeline(fmt::format("{}/volume/resolve.comp.0.spv", dir), 3, 16);
 }
 
 Renderer::~Renderer() = default;

@@ -41,8 +41,12 @@ struct PassStats {
 
 class Renderer {
  public:
-  Renderer(gpu::Context& ctx, const scene::Scene& s);
+  Renderer(gpu::Context& ctx, const scene::Scene& s, uint32_t frame = 0);
   ~Renderer();
+
+  // Switches to another (static) scene, e.g. the next animation frame, and clears the accumulation.
+  // Pipelines, buffers of unchanged size and grids of unchanged media are kept.
+  void set_scene(const scene::Scene& s, uint32_t frame);
 
   // One dispatch per sample; progress(done, total) after each.
   void add_samples(int n, const std::function<void(int, int)>& progress = {});
@@ -65,13 +69,19 @@ class Renderer {
   size_t num_lights_ = 0;
   gpu::Buffer scene_buf_, accum_buf_, lights_buf_, nanovdb_buf_, media_buf_, majorant_buf_;
   gpu::Buffer out_buf_, ldr_buf_;
-  std::unique_ptr<gpu::ComputePipeline> trace_, resolve_;
+  std::map<std::string, std::unique_ptr<gpu::ComputePipeline>> pipelines_;  // by SPIR-V path
+  const gpu::ComputePipeline* trace_ = nullptr;
+  const gpu::ComputePipeline* resolve_ = nullptr;
   std::unique_ptr<gpu::Timer> timer_;
   std::map<std::string, PassStats> passes_;
   double pipeline_ms_ = 0;
   int samples_ = 0;
 
   void record_times();
+  const gpu::ComputePipeline* pipeline(const std::string& spv, uint32_t num_buffers, uint32_t push_bytes);
+  // Reallocates `b` only when its size changes.
+  void ensure(gpu::Buffer& b, const char* name, const char* category, uint64_t bytes,
+              const std::string& format);
 };
 
 }  // namespace haze::render

@@ -73,6 +73,16 @@ void validate(Emission& e, const Where& w) {
   if (e.mode != "none" && e.grid.empty()) w.fail("grid", "must name a grid when mode is \"" + e.mode + "\"");
 }
 
+void validate(Surface& m, const Where& w) {
+  if (!m.file.empty() && m.mesh)
+    w.fail("mesh", "cannot be used together with \"file\"; keep exactly one of the two");
+  if (m.file.empty() && !m.mesh)
+    w.fail("", "needs a \"file\" (an .obj path) or a \"mesh\" spec; add one of the two");
+  if (m.mesh && (!m.mesh->is_object() || !m.mesh->contains("kind") || !(*m.mesh)["kind"].is_string()))
+    w.fail("mesh",
+           "expected an object with a string \"kind\", like {\"kind\": \"box\"}, got " + m.mesh->dump());
+}
+
 void validate(Medium& m, const Where& w) {
   if (!m.file.empty() && m.procedural) {
     w.fail("procedural", "cannot be used together with \"file\"; keep exactly one of the two");
@@ -159,6 +169,10 @@ Scene read_scene(const json& j, const ReadContext& ctx, const std::string& base_
   read_params(j, s, ctx);
   s.path = ctx.origin;
   s.base_dir = base_dir;
+  for (auto& m : s.surfaces) {
+    if (!m.file.empty() && !base_dir.empty() && fs::path(m.file).is_relative())
+      m.file = (fs::path(base_dir) / m.file).lexically_normal().string();
+  }
   for (auto& m : s.media) {
     if (!m.file.empty() && !base_dir.empty() && fs::path(m.file).is_relative()) {
       m.file = (fs::path(base_dir) / m.file).lexically_normal().string();

@@ -53,6 +53,15 @@ struct Medium {
   Transform transform;
 };
 
+// A triangle mesh instance with a Lambertian material.
+struct Surface {
+  std::string file;                    // an .obj, relative to the scene file's folder...
+  std::optional<nlohmann::json> mesh;  // ...or a built-in primitive {"kind": ...} checked by surfaces/
+  glm::vec3 albedo{0.8f};              // each in [0, 1]
+  glm::vec3 emission{0.f};             // emitted radiance (>= 0); emitters are lights for NEE
+  Transform transform;
+};
+
 // Homogeneous fog, everywhere or inside an axis-aligned box.
 struct Haze {
   float sigma_t = 0.05f;  // extinction per world unit, >= 0
@@ -140,6 +149,7 @@ struct Animation {
 struct Scene {
   Camera camera;
   std::vector<Medium> media;
+  std::vector<Surface> surfaces;
   std::optional<Haze> haze;
   Lights lights;
   RenderSettings render;
@@ -171,6 +181,7 @@ void validate(Camera& c, const Where& w);
 void validate(Transform& t, const Where& w);
 void validate(Emission& e, const Where& w);
 void validate(Medium& m, const Where& w);
+void validate(Surface& m, const Where& w);
 void validate(Haze& h, const Where& w);
 void validate(Sun& s, const Where& w);
 void validate(SpotLight& s, const Where& w);
@@ -216,6 +227,17 @@ void reflect(V& v, Medium& m) {
   v.field("g", m.g, Range{-1, 1}, "Henyey-Greenstein anisotropy (clamped to +-0.99 by the renderer)");
   v.field("emission", m.emission, "emission from a grid");
   v.field("transform", m.transform, "placement of the volume in the world");
+}
+
+template <class V>
+void reflect(V& v, Surface& m) {
+  v.field("file", m.file, ".obj file, relative to the scene file's folder; exactly one of file/mesh");
+  v.field(
+      "mesh", m.mesh,
+      "built-in mesh {\"kind\": plane|box|sphere|window|perforated_panel, ...}; exactly one of file/mesh");
+  v.field("albedo", m.albedo, Range{0, 1}, "Lambertian reflectance per RGB channel");
+  v.field("emission", m.emission, Range::at_least(0), "emitted radiance per RGB channel (0: not a light)");
+  v.field("transform", m.transform, "placement of the mesh in the world");
 }
 
 template <class V>
@@ -316,6 +338,7 @@ template <class V>
 void reflect(V& v, Scene& s) {
   v.field("camera", s.camera, "the pinhole camera");
   v.field("media", s.media, "VDB or procedural media");
+  v.field("surfaces", s.surfaces, "triangle meshes (OBJ files or built-in primitives)");
   v.field("haze", s.haze, "homogeneous fog");
   v.field("lights", s.lights, "light sources");
   v.field("render", s.render, "render settings");

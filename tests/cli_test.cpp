@@ -202,4 +202,31 @@ TEST_F(Cli, WrongGridTypeIsNamed) {
   expect_one_line_error(run(fmt::format("render {} --out {}", s, (dir / "o").string())), "smoke");
 }
 
+TEST_F(Cli, AnimatedFramesAreWrittenAndDeterministicPerFrame) {
+  std::string s = write("anim.json", R"({
+    "camera": {"position": [0, 1, 5], "target": [0, 1, 0]},
+    "media": [{"procedural": {"kind": "cloud", "voxel_size": 0.1, "size": [2, 2, 2]}}],
+    "lights": {"sun": {"direction": [0.3, 1, 0.2]}},
+    "render": {"width": 16, "height": 12, "spp": 2},
+    "animation": {"tracks": [
+      {"path": "camera.position", "keys": [{"frame": 0, "value": [0, 1, 5]}, {"frame": 2, "value": [2, 1, 4]}]},
+      {"path": "media[0].transform.translate", "keys": [{"frame": 0, "value": [0, 0, 0]}, {"frame": 2, "value": [0.5, 0, 0]}]}]}
+  })");
+  auto all = run(fmt::format("render {} --out {} --frames 0:2", s, (dir / "all").string()));
+  ASSERT_EQ(all.code, 0) << all.out;
+  for (int f = 0; f <= 2; ++f) EXPECT_TRUE(fs::exists(dir / fmt::format("all/frame_{:04d}.exr", f)));
+  auto st = nlohmann::json::parse(std::ifstream(dir / "all/stats.json"));
+  ASSERT_EQ(st["frames"].size(), 3u);
+  // Frame 1 alone equals frame 1 of the sequence: frames depend on the seed and their number only.
+  auto one = run(fmt::format("render {} --out {} --frames 1:1", s, (dir / "one").string()));
+  ASSERT_EQ(one.code, 0) << one.out;
+  auto a = haze::render::read_exr((dir / "all/frame_0001.exr").string());
+  auto b = haze::render::read_exr((dir / "one/frame_0001.exr").string());
+  EXPECT_EQ(a.channel("R"), b.channel("R"));
+  auto c = haze::render::read_exr((dir / "all/frame_0002.exr").string());
+  EXPECT_NE(a.channel("R"), c.channel("R"));
+  expect_one_line_error(run(fmt::format("render {} --out {} --frames 3:1", s, (dir / "bad").string())),
+                        "--frames");
+}
+
 }  // namespace

@@ -68,7 +68,20 @@ std::string resolve_path(const scene::Scene& s, const std::string& file) {
 
 }  // namespace
 
-DeviceMedia build_media(const scene::Scene& s) {
+namespace {
+
+// Returns the grid `source` from `previous`, else makes it.
+template <class Make>
+vdb::DeviceGrid grid_for(const std::string& source, const DeviceMedia* previous, Make&& make) {
+  if (previous)
+    for (size_t i = 0; i < previous->grid_sources.size(); ++i)
+      if (previous->grid_sources[i] == source) return previous->grids[i];
+  return make();
+}
+
+}  // namespace
+
+DeviceMedia build_media(const scene::Scene& s, const DeviceMedia* previous) {
   DeviceMedia dm;
   std::vector<vdb::MajorantInput> maj_in;
   std::vector<glm::dmat4> object_to_world;
@@ -76,9 +89,13 @@ DeviceMedia build_media(const scene::Scene& s) {
   for (size_t i = 0; i < s.media.size(); ++i) {
     const scene::Medium& m = s.media[i];
     std::string where = fmt::format("media[{}]", i);
-    vdb::DeviceGrid density =
-        m.procedural ? vdb::make_procedural(vdb::procedural_from_json(*m.procedural, where + ".procedural"))
-                     : vdb::load_grid(resolve_path(s, m.file), m.grid);
+    std::string source =
+        m.procedural ? "procedural " + m.procedural->dump() : resolve_path(s, m.file) + " " + m.grid;
+    vdb::DeviceGrid density = grid_for(source, previous, [&] {
+      return m.procedural
+                 ? vdb::make_procedural(vdb::procedural_from_json(*m.procedural, where + ".procedural"))
+                 : vdb::load_grid(resolve_path(s, m.file), m.grid);
+    });
     if (density.nan_voxels > 0)
       dm.notes.push_back(fmt::format("{}: {} NaN/Inf voxels replaced by 0", where, density.nan_voxels));
     glsl::GpuMedium g{};
@@ -106,10 +123,14 @@ DeviceMedia build_media(const scene::Scene& s) {
     uint32_t emission_offset = 0;
     bool separate_emission = mode != 0 && !m.procedural && m.emission.grid != m.grid;
     density_index.push_back(dm.grids.size());
+    dm.grid_sources.push_back(source);
     uint32_t density_offset = append_grid(dm, std::move(density));
     if (mode != 0) {
       if (separate_emission) {
-        vdb::DeviceGrid e = vdb::load_grid(resolve_path(s, m.file), m.emission.grid);
+        std::string e_source = resolve_path(s, m.file) + " " + m.emission.grid;
+        vdb::DeviceGrid e = grid_for(
+            e_source, previous, [&] { return vdb::load_grid(resolve_path(s, m.file), m.emission.grid); });
+        dm.grid_sources.push_back(e_source);
         // The emission grid is read with the density grid's index transform: they must share it.
         if (e.index_to_world != dm.grids[density_index.back()].index_to_world)
           throw vdb::Error(
@@ -169,7 +190,7 @@ std::vector<glsl::GpuLight> build_lights(const scene::Scene& s) {
 }
 
 glsl::GpuScene build_gpu_scene(const scene::Scene& s, const DeviceMedia& dm, size_t num_lights,
-                               size_t num_local_lights) {
+                               size_t num_local_lights, uint32_t frame) {
   glsl::GpuScene g{};
   const auto& c = s.camera;
   glm::vec3 fwd = glm::normalize(c.target - c.position);
@@ -182,7 +203,7 @@ glsl::GpuScene build_gpu_scene(const scene::Scene& s, const DeviceMedia& dm, siz
   g.cam_up = glm::vec4(up * tan_half, 0);
   g.cam_forward = glm::vec4(fwd, 0);
   g.size = glm::uvec4(s.render.width, s.render.height, s.render.volume_samples, s.render.max_depth);
-  g.counts = glm::uvec4(dm.media.size(), num_lights, num_local_lights, s.render.seed);
+  g.counts = glm::uvec4(dm.media.size(), num_lights, num_local_lights, s.render.seed ^ (frame * 0x9e3779b9u));
   if (s.haze) {
     const auto& h = *s.haze;
     g.haze_albedo_g = glm::vec4(h.albedo, std::clamp(h.g, -kMaxAbsG, kMaxAbsG));

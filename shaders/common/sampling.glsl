@@ -35,6 +35,13 @@ HAZE_INLINE vec3 sample_uniform_sphere(vec2 u) {
   return vec3(r * cos(phi), r * sin(phi), z);
 }
 
+// Cosine-weighted direction around n; pdf = cos(theta) / pi.
+HAZE_INLINE vec3 sample_cosine_hemisphere(vec3 n, vec2 u) {
+  float r = sqrt(u.x);
+  float phi = 2.0f * PI * u.y;
+  return onb_to_world(n, vec3(r * cos(phi), r * sin(phi), sqrt(max(0.0f, 1.0f - u.x))));
+}
+
 // Uniform direction in the cone of half-angle acos(cos_max) around axis; pdf = 1 / (2 pi (1 - cos_max)).
 HAZE_INLINE vec3 sample_uniform_cone(vec3 axis, float cos_max, vec2 u) {
   float cos_theta = 1.0f - u.x * (1.0f - cos_max);
