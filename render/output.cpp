@@ -18,13 +18,36 @@ namespace fs = std::filesystem;
 
 const std::vector<Layer>& exr_layers() {
   using namespace glsl;
+  auto out = [](uint32_t offset) {
+    return [offset](const Image& img, size_t p, int c) { return img.data[p * OUT_STRIDE + offset + c]; };
+  };
+  auto gbuf = [](uint32_t offset) {
+    return [offset](const Image& img, size_t p, int c) { return img.gbuffer[p * G_STRIDE + offset + c]; };
+  };
   static const std::vector<Layer> layers = {
-      {"", {"R", "G", "B"}, {OUT_L, OUT_L + 1, OUT_L + 2}},
-      {"volume", {"R", "G", "B"}, {OUT_VOL, OUT_VOL + 1, OUT_VOL + 2}},
-      {"surface", {"R", "G", "B"}, {OUT_SURF, OUT_SURF + 1, OUT_SURF + 2}},
-      {"transmittance", {"Y"}, {OUT_T}},
-      {"depth", {"Z"}, {OUT_DEPTH}},
-      {"variance", {"R", "G", "B"}, {OUT_VAR, OUT_VAR + 1, OUT_VAR + 2}},
+      {"", {"R", "G", "B"}, out(OUT_L)},
+      {"volume", {"R", "G", "B"}, out(OUT_VOL)},
+      {"surface", {"R", "G", "B"}, out(OUT_SURF)},
+      {"surface_demod", {"R", "G", "B"}, out(OUT_DEMOD)},
+      {"surface_demod_m2", {"R", "G", "B"}, out(OUT_DEMOD_M2)},
+      {"transmittance", {"Y"}, out(OUT_T)},
+      {"variance", {"R", "G", "B"}, out(OUT_VAR)},
+      {"depth", {"Z"}, gbuf(G_DEPTH)},
+      {"depth_gradient", {"X", "Y"}, gbuf(G_DDEPTH)},
+      {"normal",
+       {"X", "Y", "Z"},
+       [](const Image& img, size_t p, int c) {
+         const float* g = &img.gbuffer[p * G_STRIDE + G_NORMAL];
+         return oct_decode(vec2(g[0], g[1]))[c];
+       }},
+      {"albedo", {"R", "G", "B"}, gbuf(G_ALBEDO)},
+      {"instance",
+       {"ID"},
+       [](const Image& img, size_t p, int) {
+         uint32_t id = floatBitsToUint(img.gbuffer[p * G_STRIDE + G_INSTANCE]);
+         return id == 0xffffffffu ? -1.f : float(id);
+       }},
+      {"motion", {"X", "Y"}, gbuf(G_MOTION)},
   };
   return layers;
 }
@@ -54,26 +77,22 @@ void atomic_write(const std::string& path, F&& write) {
 
 void write_exr(const std::string& path, const Image& img) {
   size_t pixels = size_t(img.width) * img.height;
-  // Planar copies: OpenEXR's strided slices could read the interleaved data, but planes keep it simple.
   std::vector<std::vector<float>> planes;
   Imf::Header header(img.width, img.height);
   header.compression() = Imf::ZIP_COMPRESSION;
   Imf::FrameBuffer fb;
+  std::vector<std::string> names;
   for (const Layer& l : exr_layers()) {
     for (size_t c = 0; c < l.channels.size(); ++c) {
-      std::string name = l.name.empty() ? l.channels[c] : l.name + "." + l.channels[c];
-      header.channels().insert(name, Imf::Channel(Imf::FLOAT));
+      names.push_back(l.name.empty() ? l.channels[c] : l.name + "." + l.channels[c]);
+      header.channels().insert(names.back(), Imf::Channel(Imf::FLOAT));
       planes.emplace_back(pixels);
-      for (size_t p = 0; p < pixels; ++p) planes.back()[p] = img.data[p * glsl::OUT_STRIDE + l.offsets[c]];
+      for (size_t p = 0; p < pixels; ++p) planes.back()[p] = l.value(img, p, int(c));
     }
   }
-  size_t i = 0;
-  for (const Layer& l : exr_layers())
-    for (size_t c = 0; c < l.channels.size(); ++c, ++i) {
-      std::string name = l.name.empty() ? l.channels[c] : l.name + "." + l.channels[c];
-      fb.insert(name, Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(planes[i].data()), sizeof(float),
-                                 sizeof(float) * img.width));
-    }
+  for (size_t i = 0; i < names.size(); ++i)
+    fb.insert(names[i], Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(planes[i].data()), sizeof(float),
+                                   sizeof(float) * img.width));
   atomic_write(path, [&](const std::string& tmp) {
     Imf::OutputFile file(tmp.c_str(), header);
     file.setFrameBuffer(fb);

@@ -2,6 +2,7 @@
 // that nothing already written is lost or half-overwritten.
 #pragma once
 
+#include <functional>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
@@ -14,11 +15,11 @@ struct Error : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-// One EXR layer: its channel names and the channels of Image::data they come from.
+// One EXR layer: its channel names and how each channel's value is read from an Image.
 struct Layer {
   std::string name;                   // "" for the final image (R, G, B)
   std::vector<std::string> channels;  // e.g. {"R","G","B"}
-  std::vector<uint32_t> offsets;      // into the per-pixel OUT_STRIDE block
+  std::function<float(const Image&, size_t pixel, int channel)> value;
 };
 const std::vector<Layer>& exr_layers();
 

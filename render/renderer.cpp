@@ -39,9 +39,10 @@ nlohmann::json PassStats::to_json() const {
   return j;
 }
 
-Renderer::Renderer(gpu::Context& ctx, const scene::Scene& s, uint32_t frame) : ctx_(ctx), scene_(s) {
+Renderer::Renderer(gpu::Context& ctx, const scene::Scene& s, uint32_t frame, const scene::Scene* prev)
+    : ctx_(ctx), scene_(s) {
   timer_ = std::make_unique<gpu::Timer>(ctx, 16);
-  set_scene(s, frame);
+  set_scene(s, frame, prev);
 }
 
 const gpu::ComputePipeline* Renderer::pipeline(const std::string& spv, uint32_t num_buffers,
@@ -59,14 +60,27 @@ void Renderer::ensure(gpu::Buffer& b, const char* name, const char* category, ui
   if (!b.valid() || b.size() != bytes) b = gpu::Buffer(ctx_, name, category, bytes, format);
 }
 
-void Renderer::set_scene(const scene::Scene& s, uint32_t frame) {
+void Renderer::set_scene(const scene::Scene& s, uint32_t frame, const scene::Scene* prev) {
   scene_ = s;
   features_ = volume::features_of(s);
   media_ = volume::build_media(s, &media_);
+  geometry_ = surfaces::build_geometry(s, &geometry_);
   std::vector<glsl::GpuLight> lights = volume::build_lights(s);
-  num_lights_ = lights.size();
   size_t num_local = s.lights.points.size() + s.lights.spots.size();
-  glsl::GpuScene gs = volume::build_gpu_scene(s, media_, lights.size(), num_local, frame);
+  // Emissive triangles go after the point and spot lights (which equi-angular sampling walks).
+  std::vector<glsl::GpuLight> tri_lights;
+  for (const auto& e : geometry_.emitters) {
+    glsl::GpuLight l{};
+    l.position = glm::vec4(e.v0, float(glsl::LIGHT_TRIANGLE));
+    l.radiance = glm::vec4(e.radiance, 0);
+    l.direction = glm::vec4(e.v1, 0);
+    l.params = glm::vec4(e.v2, 0);
+    tri_lights.push_back(l);
+  }
+  lights.insert(lights.begin() + num_local, tri_lights.begin(), tri_lights.end());
+  num_lights_ = lights.size();
+  const scene::Scene& p = prev ? *prev : s;
+  glsl::GpuScene gs = volume::build_gpu_scene(s, media_, lights.size(), num_local, frame, &p.camera);
   size_t pixels = size_t(s.render.width) * s.render.height;
 
   ensure(scene_buf_, "scene", "scene data", sizeof(gs), "GpuScene");
@@ -99,10 +113,43 @@ void Renderer::set_scene(const scene::Scene& s, uint32_t frame) {
     majorant_buf_ = gpu::Buffer();
   }
 
-  uint32_t num_buffers = 2 + (features_.lights() ? 1 : 0) + (features_.hetero ? 3 : 0);
+  if (features_.surfaces) {
+    const auto& bvh = geometry_.bvh;
+    ensure(bvh_nodes_buf_, "bvh nodes", "scene data", bvh.nodes.size() * sizeof(glsl::GpuBvhNode),
+           "GpuBvhNode");
+    bvh_nodes_buf_.upload(bvh.nodes);
+    ensure(bvh_tris_buf_, "bvh triangles", "scene data", bvh.triangles.size() * sizeof(glsl::GpuTriangle),
+           "GpuTriangle");
+    bvh_tris_buf_.upload(bvh.triangles);
+    std::vector<glsl::GpuInstance> inst;
+    for (size_t i = 0; i < s.surfaces.size(); ++i) {
+      glsl::GpuInstance g{};
+      g.albedo = glm::vec4(s.surfaces[i].albedo, 0);
+      g.emission = glm::vec4(s.surfaces[i].emission, 0);
+      glm::mat4 now = s.surfaces[i].transform.matrix();
+      glm::mat4 before = i < p.surfaces.size() ? p.surfaces[i].transform.matrix() : now;
+      g.world_to_prev_world = glm::mat4(glm::dmat4(before) * glm::inverse(glm::dmat4(now)));
+      inst.push_back(g);
+    }
+    ensure(instances_buf_, "instances", "scene data", inst.size() * sizeof(glsl::GpuInstance), "GpuInstance");
+    instances_buf_.upload(inst);
+  } else {
+    bvh_nodes_buf_ = gpu::Buffer();
+    bvh_tris_buf_ = gpu::Buffer();
+    instances_buf_ = gpu::Buffer();
+  }
+  ensure(gbuffer_buf_, "g-buffer", "per-frame temporaries", pixels * glsl::G_STRIDE * 4,
+         fmt::format("{} x f32 per pixel", glsl::G_STRIDE));
+  ensure(prev_gbuffer_buf_, "previous g-buffer", "previous-frame data", pixels * glsl::G_STRIDE * 4,
+         fmt::format("{} x f32 per pixel", glsl::G_STRIDE));
+
+  uint32_t num_buffers =
+      2 + (features_.lights() ? 1 : 0) + (features_.hetero ? 3 : 0) + (features_.surfaces ? 3 : 0);
   std::string dir = spv_dir();
   trace_ = pipeline(fmt::format("{}/volume/trace.comp.{}.spv", dir, features_.mask()), num_buffers, 4);
   resolve_ = pipeline(fmt::format("{}/volume/resolve.comp.0.spv", dir), 3, 16);
+  gbuffer_ = pipeline(fmt::format("{}/surfaces/gbuffer.comp.{}.spv", dir, features_.surfaces ? 1 : 0),
+                      features_.surfaces ? 5 : 2, 0);
 }
 
 Renderer::~Renderer() = default;
@@ -118,6 +165,19 @@ void Renderer::add_samples(int n, const std::function<void(int, int)>& progress)
     uint32_t sample_index = uint32_t(samples_);
     ctx_.submit_and_wait([&](VkCommandBuffer cmd) {
       timer_->reset(cmd);
+      if (samples_ == 0) {
+        // A new frame: keep the last frame's G-buffer, then write this one's.
+        gpu::copy_buffer(cmd, gbuffer_buf_, prev_gbuffer_buf_);
+        gpu::compute_barrier(cmd);
+        timer_->begin(cmd, "gbuffer");
+        if (features_.surfaces)
+          gbuffer_->dispatch(cmd,
+                             {&scene_buf_, &gbuffer_buf_, &bvh_nodes_buf_, &bvh_tris_buf_, &instances_buf_},
+                             nullptr, gx, gy);
+        else
+          gbuffer_->dispatch(cmd, {&scene_buf_, &gbuffer_buf_}, nullptr, gx, gy);
+        timer_->end(cmd);
+      }
       timer_->begin(cmd, "trace");
       std::vector<const gpu::Buffer*> b = {&scene_buf_, &accum_buf_};
       if (features_.lights()) b.push_back(&lights_buf_);
@@ -125,6 +185,11 @@ void Renderer::add_samples(int n, const std::function<void(int, int)>& progress)
         b.push_back(&nanovdb_buf_);
         b.push_back(&media_buf_);
         b.push_back(&majorant_buf_);
+      }
+      if (features_.surfaces) {
+        b.push_back(&bvh_nodes_buf_);
+        b.push_back(&bvh_tris_buf_);
+        b.push_back(&instances_buf_);
       }
       trace_->dispatch(cmd, b, &sample_index, gx, gy);
       timer_->end(cmd);
@@ -159,6 +224,7 @@ Image Renderer::resolve() {
   img.samples = samples_;
   img.data = out_buf_.download_vector<float>();
   img.ldr = ldr_buf_.download_vector<uint32_t>();
+  img.gbuffer = gbuffer_buf_.download_vector<float>();
   return img;
 }
 

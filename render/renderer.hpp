@@ -11,6 +11,7 @@
 
 #include "gpu/gpu.hpp"
 #include "scene/scene.hpp"
+#include "surfaces/scene_geometry.hpp"
 #include "volume/device_scene.hpp"
 #include "volume/features.hpp"
 
@@ -24,9 +25,13 @@ struct Image {
   int width = 0, height = 0;
   int samples = 0;
   std::vector<float> data;
-  std::vector<uint32_t> ldr;  // RGBA8, row 0 at the top
+  std::vector<float> gbuffer;  // G_STRIDE floats per pixel
+  std::vector<uint32_t> ldr;   // RGBA8, row 0 at the top
   float at(int x, int y, uint32_t channel) const {
     return data[(size_t(y) * width + x) * glsl::OUT_STRIDE + channel];
+  }
+  float g(int x, int y, uint32_t channel) const {
+    return gbuffer[(size_t(y) * width + x) * glsl::G_STRIDE + channel];
   }
 };
 
@@ -41,12 +46,13 @@ struct PassStats {
 
 class Renderer {
  public:
-  Renderer(gpu::Context& ctx, const scene::Scene& s, uint32_t frame = 0);
+  // `prev` is the previous frame's scene (camera and transforms) for motion vectors; default: no motion.
+  Renderer(gpu::Context& ctx, const scene::Scene& s, uint32_t frame = 0, const scene::Scene* prev = nullptr);
   ~Renderer();
 
   // Switches to another (static) scene, e.g. the next animation frame, and clears the accumulation.
   // Pipelines, buffers of unchanged size and grids of unchanged media are kept.
-  void set_scene(const scene::Scene& s, uint32_t frame);
+  void set_scene(const scene::Scene& s, uint32_t frame, const scene::Scene* prev = nullptr);
 
   // One dispatch per sample; progress(done, total) after each.
   void add_samples(int n, const std::function<void(int, int)>& progress = {});
@@ -57,6 +63,7 @@ class Renderer {
 
   const volume::Features& features() const { return features_; }
   const volume::DeviceMedia& media() const { return media_; }
+  const surfaces::SceneGeometry& geometry() const { return geometry_; }
   const std::map<std::string, PassStats>& pass_stats() const { return passes_; }
   double pipeline_ms() const { return pipeline_ms_; }
   nlohmann::json stats() const;
@@ -66,12 +73,16 @@ class Renderer {
   scene::Scene scene_;
   volume::Features features_;
   volume::DeviceMedia media_;
+  surfaces::SceneGeometry geometry_;
   size_t num_lights_ = 0;
   gpu::Buffer scene_buf_, accum_buf_, lights_buf_, nanovdb_buf_, media_buf_, majorant_buf_;
   gpu::Buffer out_buf_, ldr_buf_;
+  gpu::Buffer bvh_nodes_buf_, bvh_tris_buf_, instances_buf_;  // surfaces only
+  gpu::Buffer gbuffer_buf_, prev_gbuffer_buf_;
   std::map<std::string, std::unique_ptr<gpu::ComputePipeline>> pipelines_;  // by SPIR-V path
   const gpu::ComputePipeline* trace_ = nullptr;
   const gpu::ComputePipeline* resolve_ = nullptr;
+  const gpu::ComputePipeline* gbuffer_ = nullptr;
   std::unique_ptr<gpu::Timer> timer_;
   std::map<std::string, PassStats> passes_;
   double pipeline_ms_ = 0;

@@ -24,6 +24,8 @@ std::string Features::describe() const {
   add(env, "env");
   add(local, "local");
   add(multi, "multi");
+  add(surfaces, "surfaces");
+  add(area, "area");
   return s.empty() ? "empty" : s;
 }
 
@@ -37,6 +39,10 @@ Features features_of(const scene::Scene& s) {
   f.env = s.lights.environment.has_value();
   f.local = !s.lights.points.empty() || !s.lights.spots.empty();
   f.multi = s.render.max_depth > 1;
+  f.surfaces = !s.surfaces.empty();
+  f.area = std::any_of(s.surfaces.begin(), s.surfaces.end(), [](const scene::Surface& m) {
+    return glm::any(glm::greaterThan(m.emission, glm::vec3(0)));
+  });
   return f;
 }
 
@@ -189,19 +195,30 @@ std::vector<glsl::GpuLight> build_lights(const scene::Scene& s) {
   return out;
 }
 
-glsl::GpuScene build_gpu_scene(const scene::Scene& s, const DeviceMedia& dm, size_t num_lights,
-                               size_t num_local_lights, uint32_t frame) {
-  glsl::GpuScene g{};
-  const auto& c = s.camera;
+CameraBasis camera_basis(const scene::Camera& c, const scene::RenderSettings& r) {
   glm::vec3 fwd = glm::normalize(c.target - c.position);
   glm::vec3 right = glm::normalize(glm::cross(fwd, c.up));
   glm::vec3 up = glm::cross(right, fwd);
   float tan_half = std::tan(glm::radians(c.fov_y) * 0.5f);
-  float aspect = float(s.render.width) / float(s.render.height);
-  g.cam_position = glm::vec4(c.position, 0);
-  g.cam_right = glm::vec4(right * tan_half * aspect, 0);
-  g.cam_up = glm::vec4(up * tan_half, 0);
-  g.cam_forward = glm::vec4(fwd, 0);
+  float aspect = float(r.width) / float(r.height);
+  return {glm::vec4(c.position, 0), glm::vec4(right * tan_half * aspect, 0), glm::vec4(up * tan_half, 0),
+          glm::vec4(fwd, 0)};
+}
+
+glsl::GpuScene build_gpu_scene(const scene::Scene& s, const DeviceMedia& dm, size_t num_lights,
+                               size_t num_local_lights, uint32_t frame, const scene::Camera* prev_camera) {
+  glsl::GpuScene g{};
+  CameraBasis cb = camera_basis(s.camera, s.render);
+  g.cam_position = cb.position;
+  g.cam_right = cb.right;
+  g.cam_up = cb.up;
+  g.cam_forward = cb.forward;
+  CameraBasis pb = camera_basis(prev_camera ? *prev_camera : s.camera, s.render);
+  g.prev_cam_position = pb.position;
+  g.prev_cam_right = pb.right;
+  g.prev_cam_up = pb.up;
+  g.prev_cam_forward = pb.forward;
+  g.counts2 = glm::uvec4(s.surfaces.size(), 0, 0, 0);
   g.size = glm::uvec4(s.render.width, s.render.height, s.render.volume_samples, s.render.max_depth);
   g.counts = glm::uvec4(dm.media.size(), num_lights, num_local_lights, s.render.seed ^ (frame * 0x9e3779b9u));
   if (s.haze) {

@@ -35,8 +35,16 @@ DeviceMedia build_media(const scene::Scene& s, const DeviceMedia* previous = nul
 // Local lights first (equi-angular sampling walks the first counts.z entries), then sun, then environment.
 std::vector<glsl::GpuLight> build_lights(const scene::Scene& s);
 
-// `frame` decorrelates the random numbers of animation frames (frame 0 uses the seed as it is).
+// The camera as the shaders use it (shaders/common/camera.glsl): right and up scaled by the field of view.
+struct CameraBasis {
+  glm::vec4 position, right, up, forward;
+};
+CameraBasis camera_basis(const scene::Camera& c, const scene::RenderSettings& r);
+
+// `frame` decorrelates the random numbers of animation frames (frame 0 uses the seed as it is);
+// `prev_camera` (default: the same camera) is the previous frame's, for motion vectors.
 glsl::GpuScene build_gpu_scene(const scene::Scene& s, const DeviceMedia& media, size_t num_lights,
-                               size_t num_local_lights, uint32_t frame = 0);
+                               size_t num_local_lights, uint32_t frame = 0,
+                               const scene::Camera* prev_camera = nullptr);
 
 }  // namespace haze::volume

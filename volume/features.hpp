@@ -16,14 +16,17 @@ struct Features {
   bool emission = false;  // an emitting VDB medium
   bool sun = false;
   bool env = false;
-  bool local = false;  // point or spot lights: equi-angular sampling
-  bool multi = false;  // max_depth > 1
+  bool local = false;     // point or spot lights: equi-angular sampling
+  bool multi = false;     // max_depth > 1
+  bool surfaces = false;  // triangle meshes: BVH, instances
+  bool area = false;      // emissive surfaces (lights for NEE)
 
   uint32_t mask() const {
     return uint32_t(hetero) | uint32_t(haze) << 1 | uint32_t(emission) << 2 | uint32_t(sun) << 3 |
-           uint32_t(env) << 4 | uint32_t(local) << 5 | uint32_t(multi) << 6;
+           uint32_t(env) << 4 | uint32_t(local) << 5 | uint32_t(multi) << 6 | uint32_t(surfaces) << 7 |
+           uint32_t(area) << 8;
   }
-  bool lights() const { return sun || env || local; }
+  bool lights() const { return sun || env || local || area; }
   std::string describe() const;
 };
 

@@ -8,8 +8,10 @@
 namespace haze::glsl {
 using namespace glm;
 using uint = glm::uint;
+#include "shaders/common/camera.glsl"
 #include "shaders/common/color.glsl"
 #include "shaders/common/compat.glsl"
+#include "shaders/common/packing.glsl"
 #include "shaders/common/rng.glsl"
 #include "shaders/common/sampling.glsl"
 #include "shaders/volume/gpu_scene.glsl"

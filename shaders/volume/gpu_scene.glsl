@@ -7,12 +7,20 @@
 const uint LIGHT_POINT = 0u;  // point and spot (a point is a spot with no falloff)
 const uint LIGHT_SUN = 1u;
 const uint LIGHT_ENV = 2u;
+const uint LIGHT_TRIANGLE = 3u;  // an emissive surface triangle (two-sided)
 
 struct GpuLight {
   vec4 position;   // xyz position (local), w: type
   vec4 radiance;   // rgb: intensity (local), irradiance (sun), radiance (env)
   vec4 direction;  // xyz: spot axis (local), direction towards the sun
   vec4 params;     // local: x cos_outer, y cos_inner of the spot falloff; sun: x cos of the half angle
+};
+
+// Per surface instance: its material and where its points were in the previous frame.
+struct GpuInstance {
+  vec4 albedo;               // rgb Lambertian reflectance
+  vec4 emission;             // rgb emitted radiance
+  mat4 world_to_prev_world;  // previous object_to_world * inverse(current object_to_world)
 };
 
 struct GpuMedium {
@@ -41,15 +49,32 @@ struct GpuScene {
   vec4 maj_min;        // world bounds of the majorant grid
   vec4 maj_max;
   vec4 settings;  // x: equi-angular probability, y: Russian roulette threshold, z: pixel jitter (0/1)
+  vec4 prev_cam_position;  // the previous frame's camera, for motion vectors
+  vec4 prev_cam_right;
+  vec4 prev_cam_up;
+  vec4 prev_cam_forward;
+  uvec4 counts2;  // x: surface instances
 };
 
-// Accumulation layout per pixel: sums, then sums of squares.
+// Accumulation layout per pixel: sums, then sums of squares. SURF_DEMOD is the surface term divided by the
+// albedo of the first surface hit, per sample (the surface denoiser's input).
 const uint ACC_L = 0u, ACC_VOL = 3u, ACC_SURF = 6u, ACC_T = 9u, ACC_DEPTH = 10u;
 const uint ACC_L2 = 11u, ACC_VOL2 = 14u, ACC_SURF2 = 17u, ACC_T2 = 20u;
-const uint ACC_STRIDE = 21u;
+const uint ACC_DEMOD = 21u, ACC_DEMOD2 = 24u;
+const uint ACC_STRIDE = 27u;
 
 // Resolved output per pixel.
 const uint OUT_L = 0u, OUT_VOL = 3u, OUT_SURF = 6u, OUT_T = 9u, OUT_DEPTH = 10u, OUT_VAR = 11u;
-const uint OUT_STRIDE = 14u;
+const uint OUT_DEMOD = 14u, OUT_DEMOD_M2 = 17u;
+const uint OUT_STRIDE = 20u;
+
+// G-buffer per pixel, from the ray through the pixel centre (DESIGN.md section 5).
+const uint G_DEPTH = 0u;     // Euclidean distance to the first surface; 0: none
+const uint G_DDEPTH = 1u;    // depth at the +x and +y neighbours' rays on the hit plane minus depth
+const uint G_NORMAL = 3u;    // octahedral-encoded normal, facing the camera
+const uint G_ALBEDO = 5u;    // rgb
+const uint G_INSTANCE = 8u;  // instance id as float bits; 0xffffffff: none
+const uint G_MOTION = 9u;    // previous pixel position - current pixel position
+const uint G_STRIDE = 11u;
 
 #endif

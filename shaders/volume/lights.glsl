@@ -44,6 +44,22 @@ LightSample sample_light(vec3 x, vec3 u) {
     s.Li = light.radiance.rgb;
   }
 #endif
+#if HAZE_AREA
+  if (type == LIGHT_TRIANGLE) {
+    // Uniform in area, converted to solid angle: Li / pdf = Le A |cos_l| / r^2 (two-sided emitter).
+    vec3 v0 = light.position.xyz, v1 = light.direction.xyz, v2 = light.params.xyz;
+    float b = sqrt(u.y);
+    vec3 p = (1.0f - b) * v0 + b * (1.0f - u.z) * v1 + b * u.z * v2;
+    vec3 c = cross(v1 - v0, v2 - v0);
+    float area2 = length(c);
+    vec3 to = p - x;
+    float r2 = max(dot(to, to), 1e-12f);
+    s.dist = sqrt(r2);
+    s.wi = to / s.dist;
+    float cos_l = area2 > 0.0f ? abs(dot(c / area2, s.wi)) : 0.0f;
+    s.Li = light.radiance.rgb * (0.5f * area2 * cos_l / r2);
+  }
+#endif
 #if HAZE_ENV
   if (type == LIGHT_ENV) {
     s.wi = sample_uniform_sphere(u.yz);

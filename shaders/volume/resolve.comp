@@ -35,7 +35,11 @@ void main() {
   vec3 mean = vec3(accum[a + ACC_L], accum[a + ACC_L + 1], accum[a + ACC_L + 2]) / n;
   vec3 m2 = vec3(accum[a + ACC_L2], accum[a + ACC_L2 + 1], accum[a + ACC_L2 + 2]) / n;
   vec3 var = pc.samples > 1u ? max(m2 - mean * mean, vec3(0.0f)) * (n / (n - 1.0f)) : vec3(0.0f);
-  for (uint c = 0u; c < 3u; ++c) outp[o + OUT_VAR + c] = var[c];
+  for (uint c = 0u; c < 3u; ++c) {
+    outp[o + OUT_VAR + c] = var[c];
+    outp[o + OUT_DEMOD + c] = accum[a + ACC_DEMOD + c] / n;
+    outp[o + OUT_DEMOD_M2 + c] = accum[a + ACC_DEMOD2 + c] / n;
+  }
 
   vec3 x = mean * pc.exposure_scale;
   vec3 m = pc.tonemap == 0u ? tonemap_aces(x)

@@ -10,13 +10,14 @@
 
 layout(local_size_x = 8, local_size_y = 8) in;
 
+#include "common/camera.glsl"
 #include "common/color.glsl"
 #include "common/compat.glsl"
 #include "common/rng.glsl"
 #include "common/sampling.glsl"
 #include "volume/gpu_scene.glsl"
 
-#if HAZE_SUN || HAZE_ENV || HAZE_LOCAL
+#if HAZE_SUN || HAZE_ENV || HAZE_LOCAL || HAZE_AREA
 #define HAZE_LIGHTS 1
 #endif
 
@@ -46,6 +47,22 @@ layout(std430, binding = BINDING_AFTER_LIGHTS + 2) readonly buffer MajorantBuffe
 };
 #define PNANOVDB_GLSL
 #include "nanovdb/PNanoVDB.h"
+#define BINDING_SURFACES (BINDING_AFTER_LIGHTS + 3)
+#else
+#define BINDING_SURFACES BINDING_AFTER_LIGHTS
+#endif
+#if HAZE_SURFACES
+#include "surfaces/bvh_layout.glsl"
+layout(std430, binding = BINDING_SURFACES) readonly buffer BvhNodes {
+  GpuBvhNode bvh_nodes[];
+};
+layout(std430, binding = BINDING_SURFACES + 1) readonly buffer BvhTriangles {
+  GpuTriangle bvh_triangles[];
+};
+layout(std430, binding = BINDING_SURFACES + 2) readonly buffer InstanceBuffer {
+  GpuInstance instances[];
+};
+#include "surfaces/bvh.glsl"
 #endif
 
 layout(push_constant) uniform Push {
@@ -61,6 +78,11 @@ const int ST_CAMERA = 1;   // ratio tracking T(0, t_j) to a sampled distance, wi
 const int ST_SHADOW = 2;   // ratio tracking towards a light
 const int ST_WALK = 3;     // delta tracking to the next scattering vertex
 
+// Offset of ray origins off a surface, relative to the scene's scale at that point.
+float surface_epsilon(vec3 x) {
+  return 1e-4f * max(1.0f, max(abs(x.x), max(abs(x.y), abs(x.z))));
+}
+
 void main() {
   uvec2 pix = gl_GlobalInvocationID.xy;
   uint W = scene.size.x, H = scene.size.y;
@@ -69,14 +91,23 @@ void main() {
   uint rng = rng_init(scene.counts.w, pixel, pc.sample_index);
 
   vec2 jitter = scene.settings.z > 0.5f ? vec2(rng_next(rng), rng_next(rng)) : vec2(0.5f);
-  vec2 ndc = (vec2(pix) + jitter) / vec2(W, H) * 2.0f - 1.0f;
   vec3 cam_o = scene.cam_position.xyz;
-  vec3 cam_d = normalize(scene.cam_forward.xyz + ndc.x * scene.cam_right.xyz - ndc.y * scene.cam_up.xyz);
+  vec3 cam_d = camera_direction(scene.cam_right.xyz, scene.cam_up.xyz, scene.cam_forward.xyz,
+                                vec2(pix) + jitter, vec2(W, H));
   float t_s = media_exit(cam_o, cam_d);
+  bool cam_hit = false;
+#if HAZE_SURFACES
+  BvhHit cam_h = bvh_closest_hit(cam_o, cam_d, 0.0f, T_INF);
+  if (cam_h.triangle != BVH_NONE) {
+    cam_hit = true;
+    t_s = cam_h.t;
+  }
+#endif
   uint N = scene.size.z;
   uint max_depth = scene.size.w;
 
   vec3 L_surf = vec3(0.0f), L_vol = vec3(0.0f);
+  vec3 albedo0 = vec3(1.0f);  // albedo of the camera's surface hit, for demodulation
   float T_surf = 1.0f;
 
   // Distance sampling on the camera ray: q(t) = p_base q_base(t) + p_ea q_ea(t).
@@ -97,14 +128,21 @@ void main() {
   float q_t0 = 0.0f, q_t1 = t_s;
   int q_mode = TRACK_RATIO;
   bool q_eval = false;
-  uint j = 0u;      // volume sample index
-  uint depth = 0u;  // scattering events so far
-  vec3 x = cam_o;   // current vertex
-  vec3 d = cam_d;   // direction the path travelled to reach x
+  uint j = 0u;              // volume sample index
+  uint depth = 0u;          // scattering events so far (volume or surface)
+  bool to_surface = false;  // the path belongs to the surface term (else to the volume term)
+  vec3 x = cam_o;           // current vertex
+  vec3 d = cam_d;           // direction the path travelled to reach x
   vec3 beta = vec3(0.0f);
   vec3 pending = vec3(0.0f);  // NEE contribution waiting for its shadow-ray transmittance
   float q_j = 1.0f;           // q(t_j) of the current distance sample
-  float g = 0.0f;
+  float g = 0.0f;             // phase anisotropy at a volume vertex
+  bool on_surface = false;    // the vertex is on a surface (normal n, albedo alb) rather than in a medium
+  vec3 n = vec3(0.0f, 1.0f, 0.0f), alb = vec3(0.0f);
+  // Surface the current walk ray reaches if no medium stops it first.
+  bool walk_hit = false;
+  uint walk_instance = 0u;
+  vec3 walk_normal = vec3(0.0f);
 
   for (;;) {
     TrackResult r = track(q_o, q_d, q_t0, q_t1, q_mode, q_eval, rng);
@@ -113,8 +151,25 @@ void main() {
 
     if (state == ST_SURFACE) {
       T_surf = r.T;
-      L_surf = r.T * background(cam_d);
-      next_sample = true;
+      if (cam_hit) {
+#if HAZE_SURFACES
+        GpuInstance inst = instances[cam_h.instance];
+        L_surf = r.T * inst.emission.rgb;
+        x = cam_o + cam_d * t_s;
+        n = dot(cam_h.normal, cam_d) < 0.0f ? cam_h.normal : -cam_h.normal;
+        alb = inst.albedo.rgb;
+        albedo0 = alb;
+        on_surface = true;
+        to_surface = true;
+        beta = vec3(r.T);
+        depth = 1u;
+        do_nee = max_depth > 0u && r.T > 0.0f;
+        next_sample = !do_nee;
+#endif
+      } else {
+        L_surf = r.T * background(cam_d);
+        next_sample = true;
+      }
     } else if (state == ST_CAMERA) {
       // r.T = T(0,t_j) estimate; the camera-ray contribution is T sigma (...) / q(t_j), averaged over N.
       float w = r.T * r.ms.sigma_t / (q_j * float(N));
@@ -122,20 +177,41 @@ void main() {
       if (max_depth > 0u && w > 0.0f) {
         beta = vec3(w) * r.ms.albedo;
         g = r.ms.g;
+        on_surface = false;
         depth = 1u;
         do_nee = true;
       } else {
         next_sample = true;
       }
     } else if (state == ST_SHADOW) {
-      L_vol += pending * r.T;
-#if HAZE_MULTI
+      if (to_surface)
+        L_surf += pending * r.T;
+      else
+        L_vol += pending * r.T;
+#if HAZE_MULTI || HAZE_SURFACES
       if (depth < max_depth) {
-        d = hg_sample(d, g, vec2(rng_next(rng), rng_next(rng)));
+        if (on_surface) {
+          // Lambertian: cosine sampling makes the weight the albedo.
+          d = sample_cosine_hemisphere(n, vec2(rng_next(rng), rng_next(rng)));
+          beta *= alb;
+          x += n * surface_epsilon(x);
+        } else {
+          d = hg_sample(d, g, vec2(rng_next(rng), rng_next(rng)));
+        }
         q_o = x;
         q_d = d;
         q_t0 = 0.0f;
         q_t1 = media_exit(x, d);
+        walk_hit = false;
+#if HAZE_SURFACES
+        BvhHit wh = bvh_closest_hit(x, d, 0.0f, T_INF);
+        if (wh.triangle != BVH_NONE) {
+          walk_hit = true;
+          walk_instance = wh.instance;
+          walk_normal = wh.normal;
+          q_t1 = wh.t;
+        }
+#endif
         q_mode = TRACK_DELTA;
         q_eval = false;
         state = ST_WALK;
@@ -144,11 +220,30 @@ void main() {
 #endif
       next_sample = true;
     } else {  // ST_WALK
+      bool vertex = false;
       if (r.hit) {
         x = x + d * r.t;
-        L_vol += beta * r.ms.emit;
+        vec3 emitted = beta * r.ms.emit;
+        if (to_surface)
+          L_surf += emitted;
+        else
+          L_vol += emitted;
         beta *= r.ms.albedo;
         g = r.ms.g;
+        on_surface = false;
+        vertex = true;
+      }
+#if HAZE_SURFACES
+      else if (walk_hit) {
+        // Emission of surfaces reached by the walk is counted by NEE, which samples emissive triangles.
+        x = x + d * q_t1;
+        n = dot(walk_normal, d) < 0.0f ? walk_normal : -walk_normal;
+        alb = instances[walk_instance].albedo.rgb;
+        on_surface = true;
+        vertex = true;
+      }
+#endif
+      if (vertex) {
         depth += 1u;
         float m = max(beta.x, max(beta.y, beta.z));
         if (m < 0.25f) {
@@ -167,27 +262,38 @@ void main() {
     }
 
     if (do_nee) {
+      pending = vec3(0.0f);
+      q_t1 = 0.0f;
 #if HAZE_LIGHTS
-      LightSample ls = sample_light(x, vec3(rng_next(rng), rng_next(rng), rng_next(rng)));
-      pending = beta * hg_phase(dot(ls.wi, d), g) * ls.Li;
-      q_o = x;
-      q_d = ls.wi;
-      q_t0 = 0.0f;
-      q_t1 = min(ls.dist, media_exit(x, ls.wi));
+      vec3 o = on_surface ? x + n * surface_epsilon(x) : x;
+      LightSample ls = sample_light(o, vec3(rng_next(rng), rng_next(rng), rng_next(rng)));
+      if (on_surface)
+        pending = beta * alb * (INV_PI * max(dot(n, ls.wi), 0.0f)) * ls.Li;
+      else
+        pending = beta * hg_phase(dot(ls.wi, d), g) * ls.Li;
+      bool visible = any(greaterThan(pending, vec3(0.0f)));
+#if HAZE_SURFACES
+      // Surfaces block shadow rays; an area light's own triangle is excluded by stopping just short of it.
+      if (visible) visible = !bvh_occluded(o, ls.wi, 0.0f, ls.dist < T_INF ? ls.dist * 0.9999f : T_INF);
+#endif
+      if (visible) {
+        q_o = o;
+        q_d = ls.wi;
+        q_t0 = 0.0f;
+        q_t1 = min(ls.dist, media_exit(o, ls.wi));
+      } else {
+        pending = vec3(0.0f);
+      }
+#endif
+      // Without lights (or when blocked) the shadow query is empty and adds nothing.
       q_mode = TRACK_RATIO;
       q_eval = false;
       state = ST_SHADOW;
       continue;
-#else
-      // No lights: in-scattered light comes only from emission reached by the walk.
-      pending = vec3(0.0f);
-      q_t1 = 0.0f;
-      state = ST_SHADOW;
-      continue;
-#endif
     }
 
     if (next_sample) {
+      to_surface = false;
       if (j >= N || (p_base + p_ea) == 0.0f) break;
       j += 1u;
       // Draw t_j from the mixture and evaluate q(t_j).
@@ -232,20 +338,24 @@ void main() {
   }
 
   vec3 L = L_surf + L_vol;
+  vec3 demod = L_surf / max(albedo0, vec3(1e-3f));
   // Non-finite values never enter the sums (extreme inputs are clamped, not propagated).
-  if (any(isnan(L)) || any(isinf(L))) {
+  if (any(isnan(L)) || any(isinf(L)) || any(isnan(demod)) || any(isinf(demod))) {
     L = vec3(0.0f);
     L_vol = vec3(0.0f);
     L_surf = vec3(0.0f);
+    demod = vec3(0.0f);
   }
   uint base = pixel * ACC_STRIDE;
   for (int c = 0; c < 3; ++c) {
     accum[base + ACC_L + c] += L[c];
     accum[base + ACC_VOL + c] += L_vol[c];
     accum[base + ACC_SURF + c] += L_surf[c];
+    accum[base + ACC_DEMOD + c] += demod[c];
     accum[base + ACC_L2 + c] += L[c] * L[c];
     accum[base + ACC_VOL2 + c] += L_vol[c] * L_vol[c];
     accum[base + ACC_SURF2 + c] += L_surf[c] * L_surf[c];
+    accum[base + ACC_DEMOD2 + c] += demod[c] * demod[c];
   }
   accum[base + ACC_T] += T_surf;
   accum[base + ACC_T2] += T_surf * T_surf;

@@ -1,0 +1,85 @@
+#version 460
+// The G-buffer (DESIGN.md section 5) from the ray through each pixel centre: linear depth, its gradient,
+// normal, albedo, instance id and motion (previous pixel position - current). Without surfaces only the
+// camera's own motion is left: directions at infinity reprojected into the previous camera.
+#extension GL_GOOGLE_include_directive : require
+layout(local_size_x = 8, local_size_y = 8) in;
+
+#include "common/camera.glsl"
+#include "common/compat.glsl"
+#include "common/packing.glsl"
+#include "volume/gpu_scene.glsl"
+
+layout(std430, binding = 0) readonly buffer SceneBuffer {
+  GpuScene scene;
+};
+layout(std430, binding = 1) writeonly buffer GBuffer {
+  float gbuf[];
+};
+#if HAZE_SURFACES
+#include "surfaces/bvh_layout.glsl"
+layout(std430, binding = 2) readonly buffer BvhNodes {
+  GpuBvhNode bvh_nodes[];
+};
+layout(std430, binding = 3) readonly buffer BvhTriangles {
+  GpuTriangle bvh_triangles[];
+};
+layout(std430, binding = 4) readonly buffer InstanceBuffer {
+  GpuInstance instances[];
+};
+#include "surfaces/bvh.glsl"
+#endif
+
+void main() {
+  uvec2 pix = gl_GlobalInvocationID.xy;
+  uint W = scene.size.x, H = scene.size.y;
+  if (pix.x >= W || pix.y >= H) return;
+  vec2 size = vec2(W, H);
+  vec2 centre = vec2(pix) + 0.5f;
+  vec3 o = scene.cam_position.xyz;
+  vec3 d = camera_direction(scene.cam_right.xyz, scene.cam_up.xyz, scene.cam_forward.xyz, centre, size);
+
+  float depth = 0.0f, ddx = 0.0f, ddy = 0.0f;
+  vec3 n = -d;
+  vec3 albedo = vec3(0.0f);
+  uint instance = 0xffffffffu;
+  vec2 prev = camera_project_direction(scene.prev_cam_right.xyz, scene.prev_cam_up.xyz,
+                                       scene.prev_cam_forward.xyz, d, size);
+#if HAZE_SURFACES
+  BvhHit h = bvh_closest_hit(o, d, 0.0f, T_INF);
+  if (h.triangle != BVH_NONE) {
+    depth = h.t;
+    vec3 X = o + d * h.t;
+    n = dot(h.normal, d) < 0.0f ? h.normal : -h.normal;
+    // Depth of the neighbours' rays on the hit plane: exact for planar neighbourhoods.
+    vec3 dx = camera_direction(scene.cam_right.xyz, scene.cam_up.xyz, scene.cam_forward.xyz,
+                               centre + vec2(1, 0), size);
+    vec3 dy = camera_direction(scene.cam_right.xyz, scene.cam_up.xyz, scene.cam_forward.xyz,
+                               centre + vec2(0, 1), size);
+    float nx = dot(n, dx), ny = dot(n, dy), nX = dot(n, X - o);
+    ddx = nx < -1e-6f ? nX / nx - depth : 0.0f;
+    ddy = ny < -1e-6f ? nX / ny - depth : 0.0f;
+    GpuInstance inst = instances[h.instance];
+    albedo = inst.albedo.rgb;
+    instance = h.instance;
+    vec3 X_prev = (inst.world_to_prev_world * vec4(X, 1.0f)).xyz;
+    prev = camera_project_direction(scene.prev_cam_right.xyz, scene.prev_cam_up.xyz,
+                                    scene.prev_cam_forward.xyz, X_prev - scene.prev_cam_position.xyz, size);
+  }
+#endif
+  vec2 motion = prev - centre;
+  if (any(isnan(motion)) || any(isinf(motion))) motion = vec2(0.0f);
+  uint b = (pix.y * W + pix.x) * G_STRIDE;
+  gbuf[b + G_DEPTH] = depth;
+  gbuf[b + G_DDEPTH] = ddx;
+  gbuf[b + G_DDEPTH + 1u] = ddy;
+  vec2 e = oct_encode(n);
+  gbuf[b + G_NORMAL] = e.x;
+  gbuf[b + G_NORMAL + 1u] = e.y;
+  gbuf[b + G_ALBEDO] = albedo.r;
+  gbuf[b + G_ALBEDO + 1u] = albedo.g;
+  gbuf[b + G_ALBEDO + 2u] = albedo.b;
+  gbuf[b + G_INSTANCE] = uintBitsToFloat(instance);
+  gbuf[b + G_MOTION] = motion.x;
+  gbuf[b + G_MOTION + 1u] = motion.y;
+}

@@ -1,0 +1,133 @@
+#include "surfaces/scene_geometry.hpp"
+
+#include <fmt/format.h>
+
+#include <set>
+
+#include "surfaces/error.hpp"
+
+namespace haze::surfaces {
+
+namespace {
+
+// Reads the keys of a primitive spec with defaults; every key must be used.
+class SpecReader {
+ public:
+  SpecReader(const nlohmann::json& j, std::string where) : j_(j), where_(std::move(where)) {}
+  float number(const char* key, float def) {
+    used_.insert(key);
+    auto it = j_.find(key);
+    if (it == j_.end()) return def;
+    if (!it->is_number()) fail(key, "must be a number, got " + it->dump());
+    return it->get<float>();
+  }
+  uint32_t count(const char* key, uint32_t def) {
+    float v = number(key, float(def));
+    if (v < 0 || v != std::floor(v)) fail(key, fmt::format("must be a non-negative integer, got {}", v));
+    return uint32_t(v);
+  }
+  glm::vec3 vec(const char* key, glm::vec3 def, int n) {
+    used_.insert(key);
+    auto it = j_.find(key);
+    if (it == j_.end()) return def;
+    if (!it->is_array() || int(it->size()) != n)
+      fail(key, fmt::format("must be an array of {} numbers, got {}", n, it->dump()));
+    glm::vec3 v(0);
+    for (int i = 0; i < n; ++i) {
+      if (!(*it)[i].is_number()) fail(key, "must hold numbers, got " + it->dump());
+      v[i] = (*it)[i].get<float>();
+    }
+    return v;
+  }
+  void finish() {
+    for (auto it = j_.begin(); it != j_.end(); ++it)
+      if (it.key() != "kind" && !used_.count(it.key())) fail(it.key(), "unknown key for this kind of mesh");
+  }
+  [[noreturn]] void fail(const std::string& key, const std::string& what) const {
+    throw Error(fmt::format("{}.{}: {}", where_, key, what));
+  }
+
+ private:
+  const nlohmann::json& j_;
+  std::string where_;
+  std::set<std::string> used_;
+};
+
+}  // namespace
+
+Mesh mesh_from_json(const nlohmann::json& spec, const std::string& where) {
+  if (!spec.is_object() || !spec.contains("kind") || !spec["kind"].is_string())
+    throw Error(fmt::format("{}: expected an object with a string \"kind\"", where));
+  std::string kind = spec["kind"];
+  SpecReader r(spec, where);
+  Mesh m;
+  if (kind == "plane") {
+    glm::vec3 size = r.vec("size", glm::vec3(1, 1, 0), 2);
+    r.finish();
+    m = plane(glm::vec2(size));
+  } else if (kind == "box") {
+    glm::vec3 size = r.vec("size", glm::vec3(1), 3);
+    r.finish();
+    m = box(size);
+  } else if (kind == "sphere") {
+    float radius = r.number("radius", 0.5f);
+    uint32_t segments = r.count("segments", 32);
+    r.finish();
+    m = sphere(radius, segments);
+  } else if (kind == "window") {
+    float w = r.number("width", 1), h = r.number("height", 1), frame = r.number("frame", 0.05f);
+    uint32_t slats = r.count("slats", 8);
+    float thick = r.number("slat_thickness", 0.02f), angle = r.number("slat_angle", 0);
+    r.finish();
+    m = window(w, h, frame, slats, thick, angle);
+  } else if (kind == "perforated_panel") {
+    float w = r.number("width", 1), h = r.number("height", 1);
+    uint32_t hx = r.count("holes_x", 4), hy = r.count("holes_y", 4);
+    float hole = r.number("hole_size", 0.1f);
+    r.finish();
+    m = perforated_panel(w, h, hx, hy, hole);
+  } else {
+    r.fail("kind", fmt::format("is '{}'; use one of plane, box, sphere, window, perforated_panel", kind));
+  }
+  return m;
+}
+
+SceneGeometry build_geometry(const scene::Scene& s, const SceneGeometry* previous) {
+  SceneGeometry g;
+  for (size_t i = 0; i < s.surfaces.size(); ++i) {
+    const scene::Surface& sf = s.surfaces[i];
+    std::string where = fmt::format("surfaces[{}]", i);
+    std::string source = sf.mesh ? "mesh " + sf.mesh->dump() : "obj " + sf.file;
+    const Mesh* reuse = nullptr;
+    if (previous)
+      for (size_t k = 0; k < previous->sources.size(); ++k)
+        if (previous->sources[k] == source) reuse = &previous->meshes[k];
+    Mesh m;
+    if (reuse) {
+      m = *reuse;
+    } else if (sf.mesh) {
+      m = mesh_from_json(*sf.mesh, where + ".mesh");
+    } else {
+      MeshStats st;
+      m = load_obj(sf.file, &st);
+      if (st.dropped() > 0)
+        g.notes.push_back(fmt::format("{}: {} dropped {} triangles ({} with NaN/Inf vertices, {} degenerate)",
+                                      where, sf.file, st.dropped(), st.dropped_nonfinite,
+                                      st.dropped_degenerate));
+    }
+    g.meshes.push_back(std::move(m));
+    g.sources.push_back(source);
+    g.instances.push_back({uint32_t(i), sf.transform.matrix()});
+  }
+  std::vector<glsl::GpuTriangle> world = world_triangles(g.meshes, g.instances);
+  for (const auto& t : world) {
+    uint32_t inst = instance_id(t);
+    glm::vec3 e = s.surfaces[inst].emission;
+    if (e.x > 0 || e.y > 0 || e.z > 0)
+      g.emitters.push_back({glm::vec3(t.v0), glm::vec3(t.v1), glm::vec3(t.v2), e});
+  }
+  g.bvh = build_bvh(world);
+  return g;
+}
+
+}  // namespace haze::surfaces

@@ -1,0 +1,36 @@
+// The surfaces of a scene: meshes (built-in primitives or OBJ files), their instances and the BVH over all
+// of them in world space, plus what the renderer needs for materials, emitters and motion.
+#pragma once
+
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "scene/scene.hpp"
+#include "surfaces/bvh.hpp"
+#include "surfaces/mesh.hpp"
+
+namespace haze::surfaces {
+
+// A built-in primitive from its JSON spec {"kind": ..., parameters}; unknown keys and bad values name
+// `where` and the key.
+Mesh mesh_from_json(const nlohmann::json& spec, const std::string& where);
+
+struct EmissiveTriangle {
+  glm::vec3 v0, v1, v2;
+  glm::vec3 radiance;
+};
+
+struct SceneGeometry {
+  std::vector<Mesh> meshes;          // one per scene surface
+  std::vector<std::string> sources;  // what each mesh was made from, for reuse across frames
+  std::vector<Instance> instances;   // one per scene surface, same order
+  Bvh bvh;
+  std::vector<EmissiveTriangle> emitters;
+  std::vector<std::string> notes;  // dropped triangles and the like
+};
+
+// Meshes of `previous` whose source is unchanged are reused (an animation only moves them).
+SceneGeometry build_geometry(const scene::Scene& s, const SceneGeometry* previous = nullptr);
+
+}  // namespace haze::surfaces
