@@ -74,10 +74,11 @@ int run_render(const std::string& scene_path, const std::string& out, int spp, c
   for (int f = first; f <= last; ++f) {
     auto t0 = std::chrono::steady_clock::now();
     scene::Scene fs = scene::scene_at_frame(s, f);
+    scene::Scene prev = scene::scene_at_frame(s, f - 1);  // for motion vectors
     if (!r)
-      r = std::make_unique<render::Renderer>(ctx, fs, uint32_t(f));
+      r = std::make_unique<render::Renderer>(ctx, fs, uint32_t(f), &prev);
     else
-      r->set_scene(fs, uint32_t(f));
+      r->set_scene(fs, uint32_t(f), &prev);
     if (f == first)
       for (const auto& n : r->media().notes) fmt::print(stderr, "note: {}\n", n);
     auto t1 = std::chrono::steady_clock::now();
