@@ -15,6 +15,7 @@ build: configure
 
 demo: build
 	MESA_SHADER_CACHE_DIR=$(CURDIR)/$(BUILD)/mesa-cache $(BUILD)/haze render scenes/demo.json --out out/demo
+	MESA_SHADER_CACHE_DIR=$(CURDIR)/$(BUILD)/mesa-cache $(BUILD)/haze render scenes/room.json --frames 0:0 --out out/room
 
 test: build
 	cd $(BUILD) && ctest --output-on-failure -j $(JOBS)
