@@ -43,7 +43,8 @@ TEST(SurfaceRender, EmittingEnclosureIsAFurnace) {
   double z = z_score(e, std::vector<double>(e.mean.size(), Le / (1 - a)));
   double avg = 0, sd = 0;
   for (size_t p = 0; p < e.mean.size(); ++p) avg += e.mean[p] / e.mean.size(), sd += e.var_of_mean[p];
-  std::cout << "z = " << z << ", mean " << avg << ", sd of the mean " << std::sqrt(sd) / e.mean.size() << "\n";
+  std::cout << "z = " << z << ", mean " << avg << ", sd of the mean " << std::sqrt(sd) / e.mean.size()
+            << "\n";
   EXPECT_LT(std::abs(z), kZ) << "z = " << z;
   EXPECT_EQ(context().validation_messages(), 0u);
 }
