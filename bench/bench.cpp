@@ -1,13 +1,17 @@
 #include "bench/bench.hpp"
 
 #include <fmt/format.h>
+#include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cstdio>
 #include <functional>
 
 #include "render/renderer.hpp"
 #include "scene/scene.hpp"
+#include "surfaces/embree_ref.hpp"
+#include "surfaces/scene_geometry.hpp"
 
 namespace haze::bench {
 
@@ -62,6 +66,58 @@ double copy_ms(gpu::Context& ctx, size_t floats, int reps) {
 
 }  // namespace
 
+// BVH rays per second on the GPU and through Embree's CPU intersector (all threads): the same random rays
+// over a slatted window, a sphere, a perforated panel and a floor.
+struct BvhFigures {
+  double gpu_rays_per_s = 0, embree_rays_per_s = 0;
+  size_t triangles = 0;
+};
+
+BvhFigures bench_bvh(gpu::Context& ctx) {
+  nlohmann::json j = {
+      {"surfaces",
+       {{{"mesh", {{"kind", "window"}, {"slats", 12}}}},
+        {{"mesh", {{"kind", "sphere"}, {"radius", 0.5}, {"segments", 64}}},
+         {"transform", {{"translate", {1, 0, 0}}}}},
+        {{"mesh", {{"kind", "perforated_panel"}, {"holes_x", 8}, {"holes_y", 8}}},
+         {"transform", {{"translate", {0, 0, -1}}}}},
+        {{"mesh", {{"kind", "box"}, {"size", {3, 0.1, 3}}}}, {"transform", {{"translate", {0, -1, 0}}}}}}}};
+  scene::Scene s = scene::from_json(j, "bench surfaces", "");
+  surfaces::SceneGeometry geo = surfaces::build_geometry(s);
+  const size_t n = 1 << 18;
+  std::vector<glsl::GpuRay> rays(n);
+  uint32_t state = glsl::rng_init(5u, 0u, 0u);
+  for (auto& r : rays) {
+    glm::vec3 o = glm::vec3(glsl::rng_next(state), glsl::rng_next(state), glsl::rng_next(state)) * 4.f - 2.f;
+    glm::vec3 d = glsl::sample_uniform_sphere(glm::vec2(glsl::rng_next(state), glsl::rng_next(state)));
+    r.origin_tmin = glm::vec4(o, 0);
+    r.direction_tmax = glm::vec4(d, 1e30f);
+  }
+  auto dev = surfaces::upload(ctx, geo.bvh);
+  gpu::Buffer ray_buf(ctx, "bench rays", "benchmark", n * sizeof(glsl::GpuRay), "GpuRay");
+  ray_buf.upload(rays);
+  gpu::Buffer hit_buf(ctx, "bench hits", "benchmark", n * sizeof(glsl::GpuRayHit), "GpuRayHit");
+  gpu::ComputePipeline trace(ctx, gpu::variant_spv(render::spv_dir(), "surfaces/trace_rays.comp", 0), 4, 4);
+  uint32_t count = uint32_t(n);
+  double gpu_ms = timed_median(ctx, 3, [&](VkCommandBuffer cmd) {
+    trace.dispatch(cmd, {&dev.nodes, &dev.triangles, &ray_buf, &hit_buf}, &count, (count + 63) / 64);
+  });
+  surfaces::EmbreeScene ref(geo.bvh.triangles);
+  std::vector<double> cpu;
+  for (int rep = 0; rep < 3; ++rep) {
+    auto t0 = std::chrono::steady_clock::now();
+    tbb::parallel_for(size_t(0), n, [&](size_t i) {
+      ref.intersect(glm::vec3(rays[i].origin_tmin), glm::vec3(rays[i].direction_tmax), 0.f, 1e30f);
+    });
+    cpu.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+  }
+  BvhFigures f;
+  f.gpu_rays_per_s = n / (gpu_ms * 1e-3);
+  f.embree_rays_per_s = n / (render::median(cpu) * 1e-3);
+  f.triangles = geo.bvh.triangles.size();
+  return f;
+}
+
 int run(const Options& o, const gpu::ContextOptions& co) {
   int w = 0, h = 0;
   if (std::sscanf(o.size.c_str(), "%dx%d", &w, &h) != 2 || w < 1 || h < 1)
@@ -114,6 +170,11 @@ int run(const Options& o, const gpu::ContextOptions& co) {
                  {"resolve", {{"ms", t_resolve}, {"ratio_to_copy", t_resolve / t_copy}}},
                  {"lookup (16 per pixel)", {{"median_ms", t_lookup}, {"ratio_to_copy", t_lookup / t_copy}}}};
   j["pipeline_creation_ms"] = r.pipeline_ms();
+  BvhFigures bvh = bench_bvh(ctx);
+  j["bvh"] = {{"triangles", bvh.triangles},
+              {"gpu_rays_per_s", bvh.gpu_rays_per_s},
+              {"embree_rays_per_s", bvh.embree_rays_per_s},
+              {"gpu_over_embree", bvh.gpu_rays_per_s / bvh.embree_rays_per_s}};
   if (o.json) {
     fmt::print("{}\n", j.dump(2));
     return 0;
@@ -127,6 +188,10 @@ int run(const Options& o, const gpu::ContextOptions& co) {
              fmt::format("{:.3g}", j["volume_samples_per_s"].get<double>()));
   fmt::print("  {:<28}{:>14}\n", "density lookups / s",
              fmt::format("{:.3g}", j["density_lookups_per_s"].get<double>()));
+  fmt::print("  {:<28}{:>14}\n", fmt::format("BVH rays / s ({} tris)", bvh.triangles),
+             fmt::format("{:.3g}", bvh.gpu_rays_per_s));
+  fmt::print("  {:<28}{:>14}\n", "Embree CPU rays / s", fmt::format("{:.3g}", bvh.embree_rays_per_s));
+  fmt::print("  {:<28}{:>14.2f}\n", "BVH GPU / Embree", bvh.gpu_rays_per_s / bvh.embree_rays_per_s);
   fmt::print("  {:<28}{:>14}\n", "pass", "x copy");
   fmt::print("  {:<28}{:>14.1f}\n", "trace (1 spp)", t_trace / t_copy);
   fmt::print("  {:<28}{:>14.1f}\n", "resolve", t_resolve / t_copy);

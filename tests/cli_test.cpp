@@ -229,4 +229,13 @@ TEST_F(Cli, AnimatedFramesAreWrittenAndDeterministicPerFrame) {
                         "--frames");
 }
 
+TEST_F(Cli, BenchReportsRatiosAsJson) {
+  auto r = run("bench --json --size 16x16 --spp 1");
+  ASSERT_EQ(r.code, 0) << r.out;
+  auto j = nlohmann::json::parse(r.out.substr(r.out.find('{')));
+  EXPECT_GT(j["passes"]["trace"]["ratio_to_copy"].get<double>(), 0.0);
+  EXPECT_GT(j["bvh"]["gpu_over_embree"].get<double>(), 0.0);
+  EXPECT_GT(j["density_lookups_per_s"].get<double>(), 0.0);
+}
+
 }  // namespace
