@@ -13,6 +13,8 @@
 #include <sstream>
 #include <string>
 
+#include "temp_dir.hpp"
+
 namespace fs = std::filesystem;
 using haze::scene::Error;
 using haze::scene::Scene;
@@ -73,26 +75,9 @@ float scalar_at(const std::vector<json>& keys, const std::string& interpolation,
   return hs::scene_at_frame(s, frame).lights.sun->irradiance;
 }
 
-class TempDir {
- public:
-  TempDir() {
-    path_ = fs::temp_directory_path() /
-            ("haze_animation_test_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) +
-             "_" + ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(path_);
-    fs::create_directories(path_);
-  }
-  ~TempDir() { fs::remove_all(path_); }
-  fs::path write(const std::string& name, const std::string& text) const {
-    fs::path p = path_ / name;
-    fs::create_directories(p.parent_path());
-    std::ofstream(p) << text;
-    return p;
-  }
-  const fs::path& path() const { return path_; }
-
- private:
-  fs::path path_;
+// Each test's files live in its own folder.
+struct TempDir : haze::test::TempDir {
+  TempDir() : haze::test::TempDir("haze_animation_test") {}
 };
 
 }  // namespace
