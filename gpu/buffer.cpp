@@ -27,10 +27,6 @@ int find_type(const VkPhysicalDeviceMemoryProperties& mp, uint32_t bits,
   return -1;
 }
 
-bool is_oom(VkResult r) {
-  return r == VK_ERROR_OUT_OF_DEVICE_MEMORY || r == VK_ERROR_OUT_OF_HOST_MEMORY;
-}
-
 }  // namespace
 
 Buffer::Buffer(Context& ctx, std::string name, std::string category, uint64_t bytes, std::string format)
@@ -54,8 +50,8 @@ Buffer::Buffer(Context& ctx, std::string name, std::string category, uint64_t by
 void Buffer::create(Kind kind) {
   Context& ctx = *ctx_;
   const auto oom = [&] {
-    return Error(fmt::format("out of device memory allocating '{}' ({}, category {})", name_,
-                             format_bytes(size_), category_));
+    return fmt::format("out of device memory allocating '{}' ({}, category {})", name_, format_bytes(size_),
+                       category_);
   };
   const auto too_big = [&](const char* limit, uint64_t value) {
     return Error(fmt::format("buffer '{}' ({}, category {}) is larger than this device's {} ({})", name_,
@@ -78,8 +74,7 @@ void Buffer::create(Kind kind) {
   if (bda) info.usage |= VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT;
   info.sharingMode = VK_SHARING_MODE_EXCLUSIVE;
   VkResult r = vkCreateBuffer(ctx.device(), &info, nullptr, &buffer_);
-  if (is_oom(r)) throw oom();
-  vk_check(r, fmt::format("vkCreateBuffer('{}')", name_));
+  vk_check_alloc(r, fmt::format("vkCreateBuffer('{}')", name_), oom);
 
   VkMemoryRequirements req;
   vkGetBufferMemoryRequirements(ctx.device(), buffer_, &req);
@@ -110,18 +105,15 @@ void Buffer::create(Kind kind) {
   ainfo.allocationSize = req.size;
   ainfo.memoryTypeIndex = static_cast<uint32_t>(type);
   r = vkAllocateMemory(ctx.device(), &ainfo, nullptr, &memory_);
-  if (is_oom(r)) throw oom();
-  vk_check(r, fmt::format("vkAllocateMemory('{}')", name_));
+  vk_check_alloc(r, fmt::format("vkAllocateMemory('{}')", name_), oom);
   r = vkBindBufferMemory(ctx.device(), buffer_, memory_, 0);
-  if (is_oom(r)) throw oom();
-  vk_check(r, fmt::format("vkBindBufferMemory('{}')", name_));
+  vk_check_alloc(r, fmt::format("vkBindBufferMemory('{}')", name_), oom);
   allocated_ = req.size;
   ctx.set_object_name(VK_OBJECT_TYPE_BUFFER, reinterpret_cast<uint64_t>(buffer_), name_);
 
   if ((flags & kHost) && (kind == Kind::Staging || !ctx.force_staging())) {
     r = vkMapMemory(ctx.device(), memory_, 0, VK_WHOLE_SIZE, 0, &mapped_);
-    if (is_oom(r)) throw oom();
-    vk_check(r, fmt::format("vkMapMemory('{}')", name_));
+    vk_check_alloc(r, fmt::format("vkMapMemory('{}')", name_), oom);
     coherent_ = (flags & kCoherent) != 0;
   }
   if (bda) {

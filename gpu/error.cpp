@@ -57,6 +57,11 @@ void vk_check(VkResult r, std::string_view what) {
   if (r != VK_SUCCESS) throw Error(fmt::format("{} failed: {}", what, result_name(r)));
 }
 
+void vk_check_alloc(VkResult r, std::string_view what, const std::function<std::string()>& oom_message) {
+  if (r == VK_ERROR_OUT_OF_DEVICE_MEMORY || r == VK_ERROR_OUT_OF_HOST_MEMORY) throw Error(oom_message());
+  vk_check(r, what);
+}
+
 std::string format_bytes(uint64_t bytes) {
   if (bytes < 1024) return fmt::format("{} B", bytes);
   static const char* units[] = {"KiB", "MiB", "GiB", "TiB", "PiB"};

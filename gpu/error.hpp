@@ -4,6 +4,7 @@
 #include <vulkan/vulkan.h>
 
 #include <cstdint>
+#include <functional>
 #include <stdexcept>
 #include <string>
 #include <string_view>
@@ -19,6 +20,10 @@ std::string result_name(VkResult r);
 
 // Throws Error("<what> failed: <VkResult name>") unless r is VK_SUCCESS.
 void vk_check(VkResult r, std::string_view what);
+
+// Like vk_check, but an out-of-memory result throws Error(oom_message()) instead: allocations name what
+// they were allocating and how much.
+void vk_check_alloc(VkResult r, std::string_view what, const std::function<std::string()>& oom_message);
 
 // "512 B", "3.0 KiB", "1.2 GiB": for messages and reports.
 std::string format_bytes(uint64_t bytes);

@@ -46,10 +46,6 @@ std::string known_formats() {
   return s;
 }
 
-bool is_oom(VkResult r) {
-  return r == VK_ERROR_OUT_OF_DEVICE_MEMORY || r == VK_ERROR_OUT_OF_HOST_MEMORY;
-}
-
 constexpr VkImageSubresourceRange kWholeImage{VK_IMAGE_ASPECT_COLOR_BIT, 0, 1, 0, 1};
 constexpr VkPipelineStageFlags kUseStages =
     VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_TRANSFER_BIT;
@@ -155,8 +151,8 @@ void Image::create() {
     throw too_big("maximum extent for this format", ifp.maxExtent.width, ifp.maxExtent.height);
 
   const auto oom = [&] {
-    return Error(fmt::format("out of device memory allocating '{}' ({}, {}, category {})", name_, describe(),
-                             format_bytes(size()), category_));
+    return fmt::format("out of device memory allocating '{}' ({}, {}, category {})", name_, describe(),
+                       format_bytes(size()), category_);
   };
   auto info = vk_struct<VkImageCreateInfo>(VK_STRUCTURE_TYPE_IMAGE_CREATE_INFO);
   info.imageType = VK_IMAGE_TYPE_2D;
@@ -170,8 +166,7 @@ void Image::create() {
   info.sharingMode = VK_SHARING_MODE_EXCLUSIVE;
   info.initialLayout = VK_IMAGE_LAYOUT_UNDEFINED;
   r = vkCreateImage(ctx.device(), &info, nullptr, &image_);
-  if (is_oom(r)) throw oom();
-  vk_check(r, fmt::format("vkCreateImage('{}')", name_));
+  vk_check_alloc(r, fmt::format("vkCreateImage('{}')", name_), oom);
 
   VkMemoryRequirements req;
   vkGetImageMemoryRequirements(ctx.device(), image_, &req);
@@ -200,11 +195,9 @@ void Image::create() {
   ainfo.allocationSize = req.size;
   ainfo.memoryTypeIndex = static_cast<uint32_t>(type);
   r = vkAllocateMemory(ctx.device(), &ainfo, nullptr, &memory_);
-  if (is_oom(r)) throw oom();
-  vk_check(r, fmt::format("vkAllocateMemory('{}')", name_));
+  vk_check_alloc(r, fmt::format("vkAllocateMemory('{}')", name_), oom);
   r = vkBindImageMemory(ctx.device(), image_, memory_, 0);
-  if (is_oom(r)) throw oom();
-  vk_check(r, fmt::format("vkBindImageMemory('{}')", name_));
+  vk_check_alloc(r, fmt::format("vkBindImageMemory('{}')", name_), oom);
   allocated_ = req.size;
 
   auto vinfo = vk_struct<VkImageViewCreateInfo>(VK_STRUCTURE_TYPE_IMAGE_VIEW_CREATE_INFO);
@@ -213,8 +206,7 @@ void Image::create() {
   vinfo.format = format_;
   vinfo.subresourceRange = kWholeImage;
   r = vkCreateImageView(ctx.device(), &vinfo, nullptr, &view_);
-  if (is_oom(r)) throw oom();
-  vk_check(r, fmt::format("vkCreateImageView('{}')", name_));
+  vk_check_alloc(r, fmt::format("vkCreateImageView('{}')", name_), oom);
   ctx.set_object_name(VK_OBJECT_TYPE_IMAGE, reinterpret_cast<uint64_t>(image_), name_);
   ctx.set_object_name(VK_OBJECT_TYPE_IMAGE_VIEW, reinterpret_cast<uint64_t>(view_), name_);
   ledger_id_ = ctx.ledger().add({name_, category_, describe(), allocated_, size()});
