@@ -3,6 +3,7 @@
 #include <unistd.h>
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -70,6 +71,7 @@ int run_render(const std::string& scene_path, const std::string& out, int spp, c
   fmt::print(stderr, "device: {} ({})\n", ctx.device_name(), ctx.driver_info());
   std::unique_ptr<render::Renderer> r;
   nlohmann::json per_frame = nlohmann::json::array();
+  std::vector<std::string> notes;
   double setup_s = 0, render_s = 0;
   for (int f = first; f <= last; ++f) {
     auto t0 = std::chrono::steady_clock::now();
@@ -79,8 +81,11 @@ int run_render(const std::string& scene_path, const std::string& out, int spp, c
       r = std::make_unique<render::Renderer>(ctx, fs, uint32_t(f), &prev);
     else
       r->set_scene(fs, uint32_t(f), &prev);
-    if (f == first)
-      for (const auto& n : r->media().notes) fmt::print(stderr, "note: {}\n", n);
+    for (const auto& n : r->notes())
+      if (std::find(notes.begin(), notes.end(), n) == notes.end()) {
+        fmt::print(stderr, "note: {}\n", n);
+        notes.push_back(n);
+      }
     auto t1 = std::chrono::steady_clock::now();
     if (last > first) fmt::print(stderr, "frame {} ({}..{})\n", f, first, last);
     size_t before = r->pass_stats().count("trace") ? r->pass_stats().at("trace").ms.size() : 0;
@@ -104,6 +109,7 @@ int run_render(const std::string& scene_path, const std::string& out, int spp, c
   st["scene"] = scene::to_json(s);
   st["scene_file"] = scene_path;
   st["frames"] = per_frame;
+  st["notes"] = notes;  // of every frame, each once
   st["setup_s"] = setup_s;
   st["render_s"] = render_s;
   if (s.render.wants("stats")) render::write_json((std::filesystem::path(out) / "stats.json").string(), st);

@@ -121,9 +121,12 @@ void Renderer::set_scene(const scene::Scene& s, uint32_t frame, const scene::Sce
     ensure(bvh_tris_buf_, "bvh triangles", "scene data", bvh.triangles.size() * sizeof(glsl::GpuTriangle),
            "GpuTriangle");
     bvh_tris_buf_.upload(bvh.triangles);
+    std::vector<glm::uvec4> placement;
+    std::vector<glm::uvec2> texels = surfaces::packed_texels(geometry_, &placement);
     std::vector<glsl::GpuInstance> inst;
     for (size_t i = 0; i < s.surfaces.size(); ++i) {
       glsl::GpuInstance g{};
+      if (geometry_.instance_texture[i] >= 0) g.texture = placement[size_t(geometry_.instance_texture[i])];
       g.albedo = glm::vec4(s.surfaces[i].albedo, 0);
       g.emission = glm::vec4(s.surfaces[i].emission, 0);
       glm::mat4 now = s.surfaces[i].transform.matrix();
@@ -133,26 +136,45 @@ void Renderer::set_scene(const scene::Scene& s, uint32_t frame, const scene::Sce
     }
     ensure(instances_buf_, "instances", "scene data", inst.size() * sizeof(glsl::GpuInstance), "GpuInstance");
     instances_buf_.upload(inst);
+    if (features_.texture) {
+      ensure(triangle_uvs_buf_, "triangle uvs", "scene data",
+             geometry_.triangle_uvs.size() * sizeof(glsl::GpuTriangleUv), "GpuTriangleUv");
+      triangle_uvs_buf_.upload(geometry_.triangle_uvs);
+      ensure(texels_buf_, "albedo textures", "scene data", texels.size() * sizeof(glm::uvec2),
+             fmt::format("RGB unorm16, {} textures", placement.size()));
+      texels_buf_.upload(texels);
+    } else {
+      triangle_uvs_buf_ = gpu::Buffer();
+      texels_buf_ = gpu::Buffer();
+    }
   } else {
     bvh_nodes_buf_ = gpu::Buffer();
     bvh_tris_buf_ = gpu::Buffer();
     instances_buf_ = gpu::Buffer();
+    triangle_uvs_buf_ = gpu::Buffer();
+    texels_buf_ = gpu::Buffer();
   }
   ensure(gbuffer_buf_, "g-buffer", "per-frame temporaries", pixels * glsl::G_STRIDE * 4,
          fmt::format("{} x f32 per pixel", glsl::G_STRIDE));
   ensure(prev_gbuffer_buf_, "previous g-buffer", "previous-frame data", pixels * glsl::G_STRIDE * 4,
          fmt::format("{} x f32 per pixel", glsl::G_STRIDE));
 
-  uint32_t num_buffers =
-      2 + (features_.lights() ? 1 : 0) + (features_.hetero ? 3 : 0) + (features_.surfaces ? 3 : 0);
+  const uint32_t surface_buffers = features_.surfaces ? (features_.texture ? 5 : 3) : 0;
+  uint32_t num_buffers = 2 + (features_.lights() ? 1 : 0) + (features_.hetero ? 3 : 0) + surface_buffers;
   std::string dir = spv_dir();
   trace_ = pipeline(fmt::format("{}/volume/trace.comp.{}.spv", dir, features_.mask()), num_buffers, 4);
   resolve_ = pipeline(fmt::format("{}/volume/resolve.comp.0.spv", dir), 3, 16);
-  gbuffer_ = pipeline(fmt::format("{}/surfaces/gbuffer.comp.{}.spv", dir, features_.surfaces ? 1 : 0),
-                      features_.surfaces ? 5 : 2, 0);
+  gbuffer_ = pipeline(fmt::format("{}/surfaces/gbuffer.comp.{}.spv", dir, features_.gbuffer_mask()),
+                      2 + surface_buffers, 0);
 }
 
 Renderer::~Renderer() = default;
+
+void Renderer::append_surface_buffers(std::vector<const gpu::Buffer*>& b) const {
+  if (!features_.surfaces) return;
+  b.insert(b.end(), {&bvh_nodes_buf_, &bvh_tris_buf_, &instances_buf_});
+  if (features_.texture) b.insert(b.end(), {&triangle_uvs_buf_, &texels_buf_});
+}
 
 void Renderer::record_times() {
   for (auto& [name, ms] : timer_->read_ms()) passes_[name].ms.push_back(ms);
@@ -170,12 +192,9 @@ void Renderer::add_samples(int n, const std::function<void(int, int)>& progress)
         gpu::copy_buffer(cmd, gbuffer_buf_, prev_gbuffer_buf_);
         gpu::compute_barrier(cmd);
         timer_->begin(cmd, "gbuffer");
-        if (features_.surfaces)
-          gbuffer_->dispatch(cmd,
-                             {&scene_buf_, &gbuffer_buf_, &bvh_nodes_buf_, &bvh_tris_buf_, &instances_buf_},
-                             nullptr, gx, gy);
-        else
-          gbuffer_->dispatch(cmd, {&scene_buf_, &gbuffer_buf_}, nullptr, gx, gy);
+        std::vector<const gpu::Buffer*> gb = {&scene_buf_, &gbuffer_buf_};
+        append_surface_buffers(gb);
+        gbuffer_->dispatch(cmd, gb, nullptr, gx, gy);
         timer_->end(cmd);
       }
       timer_->begin(cmd, "trace");
@@ -186,11 +205,7 @@ void Renderer::add_samples(int n, const std::function<void(int, int)>& progress)
         b.push_back(&media_buf_);
         b.push_back(&majorant_buf_);
       }
-      if (features_.surfaces) {
-        b.push_back(&bvh_nodes_buf_);
-        b.push_back(&bvh_tris_buf_);
-        b.push_back(&instances_buf_);
-      }
+      append_surface_buffers(b);
       trace_->dispatch(cmd, b, &sample_index, gx, gy);
       timer_->end(cmd);
     });
@@ -232,6 +247,12 @@ std::vector<float> Renderer::accum() const {
   return accum_buf_.download_vector<float>();
 }
 
+std::vector<std::string> Renderer::notes() const {
+  std::vector<std::string> n = media_.notes;
+  n.insert(n.end(), geometry_.notes.begin(), geometry_.notes.end());
+  return n;
+}
+
 nlohmann::json Renderer::stats() const {
   nlohmann::json j;
   j["device"] = ctx_.describe();
@@ -243,7 +264,7 @@ nlohmann::json Renderer::stats() const {
   for (const auto& [name, st] : passes_) p[name] = st.to_json();
   j["passes"] = p;
   j["memory"] = ctx_.ledger().to_json();
-  j["notes"] = media_.notes;
+  j["notes"] = notes();
   j["majorant_resolution"] = {media_.majorant.res.x, media_.majorant.res.y, media_.majorant.res.z};
   return j;
 }

@@ -63,6 +63,8 @@ class Renderer {
 
   const volume::Features& features() const { return features_; }
   const volume::DeviceMedia& media() const { return media_; }
+  // What loading the scene changed or dropped (clamped g, dropped triangles, ...), one line each.
+  std::vector<std::string> notes() const;
   const surfaces::SceneGeometry& geometry() const { return geometry_; }
   const std::map<std::string, PassStats>& pass_stats() const { return passes_; }
   double pipeline_ms() const { return pipeline_ms_; }
@@ -78,6 +80,7 @@ class Renderer {
   gpu::Buffer scene_buf_, accum_buf_, lights_buf_, nanovdb_buf_, media_buf_, majorant_buf_;
   gpu::Buffer out_buf_, ldr_buf_;
   gpu::Buffer bvh_nodes_buf_, bvh_tris_buf_, instances_buf_;  // surfaces only
+  gpu::Buffer triangle_uvs_buf_, texels_buf_;                 // albedo textures only
   gpu::Buffer gbuffer_buf_, prev_gbuffer_buf_;
   std::map<std::string, std::unique_ptr<gpu::ComputePipeline>> pipelines_;  // by SPIR-V path
   const gpu::ComputePipeline* trace_ = nullptr;
@@ -89,6 +92,8 @@ class Renderer {
   int samples_ = 0;
 
   void record_times();
+  // The BVH, instance and texture buffers in the order trace.comp and gbuffer.comp bind them.
+  void append_surface_buffers(std::vector<const gpu::Buffer*>& b) const;
   const gpu::ComputePipeline* pipeline(const std::string& spv, uint32_t num_buffers, uint32_t push_bytes);
   // Reallocates `b` only when its size changes.
   void ensure(gpu::Buffer& b, const char* name, const char* category, uint64_t bytes,

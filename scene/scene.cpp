@@ -170,8 +170,9 @@ Scene read_scene(const json& j, const ReadContext& ctx, const std::string& base_
   s.path = ctx.origin;
   s.base_dir = base_dir;
   for (auto& m : s.surfaces) {
-    if (!m.file.empty() && !base_dir.empty() && fs::path(m.file).is_relative())
-      m.file = (fs::path(base_dir) / m.file).lexically_normal().string();
+    for (std::string* f : {&m.file, &m.albedo_texture})
+      if (!f->empty() && !base_dir.empty() && fs::path(*f).is_relative())
+        *f = (fs::path(base_dir) / *f).lexically_normal().string();
   }
   for (auto& m : s.media) {
     if (!m.file.empty() && !base_dir.empty() && fs::path(m.file).is_relative()) {
@@ -259,6 +260,14 @@ Scene load(const std::string& path, const std::vector<std::string>& overrides) {
           fmt::format("media[{}].file", i),
           fmt::format("no such file: {} (relative paths start at the scene file's folder {})", f, base_dir));
     }
+  }
+  for (size_t i = 0; i < s.surfaces.size(); ++i) {
+    const scene::Surface& m = s.surfaces[i];
+    for (auto [key, f] : {std::pair{"file", &m.file}, std::pair{"albedo_texture", &m.albedo_texture}})
+      if (!f->empty() && !fs::is_regular_file(*f, ec))
+        ctx.fail(fmt::format("surfaces[{}].{}", i, key),
+                 fmt::format("no such file: {} (relative paths start at the scene file's folder {})", *f,
+                             base_dir));
   }
   auto [first, last] = frame_range(s);
   detail::check_frame_files(s, first, last, ctx);

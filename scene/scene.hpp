@@ -58,6 +58,7 @@ struct Surface {
   std::string file;                    // an .obj, relative to the scene file's folder...
   std::optional<nlohmann::json> mesh;  // ...or a built-in primitive {"kind": ...} checked by surfaces/
   glm::vec3 albedo{0.8f};              // each in [0, 1]
+  std::string albedo_texture;          // an image multiplied with albedo, relative like file; "" for none
   glm::vec3 emission{0.f};             // emitted radiance (>= 0); emitters are lights for NEE
   Transform transform;
 };
@@ -236,6 +237,10 @@ void reflect(V& v, Surface& m) {
       "mesh", m.mesh,
       "built-in mesh {\"kind\": plane|box|sphere|window|perforated_panel, ...}; exactly one of file/mesh");
   v.field("albedo", m.albedo, Range{0, 1}, "Lambertian reflectance per RGB channel");
+  v.field(
+      "albedo_texture", m.albedo_texture,
+      "image (PNG, JPEG, HDR, ...) multiplied with albedo at the mesh's uvs, relative to the scene file's "
+      "folder; 8/16-bit images are sRGB, HDR linear; \"\" for none");
   v.field("emission", m.emission, Range::at_least(0), "emitted radiance per RGB channel (0: not a light)");
   v.field("transform", m.transform, "placement of the mesh in the world");
 }

@@ -53,7 +53,10 @@ MeshStats drop_bad_triangles(Mesh& mesh) {
     for (int k = 0; k < 3; ++k)
       if (t[k] >= n) throw Error(fmt::format("mesh: triangle {} refers to vertex {} of {}", i, t[k], n));
     glm::vec3 a = mesh.positions[t.x], b = mesh.positions[t.y], c = mesh.positions[t.z];
-    if (!finite(a) || !finite(b) || !finite(c)) {
+    bool uv_ok = mesh.uvs.empty() || (std::isfinite(mesh.uvs[t.x].x) && std::isfinite(mesh.uvs[t.x].y) &&
+                                      std::isfinite(mesh.uvs[t.y].x) && std::isfinite(mesh.uvs[t.y].y) &&
+                                      std::isfinite(mesh.uvs[t.z].x) && std::isfinite(mesh.uvs[t.z].y));
+    if (!finite(a) || !finite(b) || !finite(c) || !uv_ok) {
       ++stats.dropped_nonfinite;
       continue;
     }

@@ -22,14 +22,14 @@ struct Mesh {
 // What drop_bad_triangles() kept and dropped.
 struct MeshStats {
   size_t triangles = 0;           // kept
-  size_t dropped_nonfinite = 0;   // a vertex with a NaN or Inf coordinate
+  size_t dropped_nonfinite = 0;   // a vertex with a NaN or Inf position or texture coordinate
   size_t dropped_degenerate = 0;  // zero area (repeated or collinear vertices)
   size_t dropped() const { return dropped_nonfinite + dropped_degenerate; }
 };
 
-// Removes triangles that no ray can hit meaningfully: non-finite vertices and zero area (the cross product
-// of two edges, in double precision, is exactly zero). Vertices stay. Throws Error when an index is out of
-// range or normals/uvs do not match positions in size.
+// Removes triangles that no ray can hit meaningfully: non-finite vertices (positions or uvs) and zero area
+// (the cross product of two edges, in double precision, is exactly zero). Vertices stay. Throws Error when an
+// index is out of range or normals/uvs do not match positions in size.
 MeshStats drop_bad_triangles(Mesh& mesh);
 
 // Reads a Wavefront OBJ (polygons are triangulated, materials ignored). Vertices are shared by their

@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <set>
 
 #include "surfaces/error.hpp"
@@ -115,6 +116,25 @@ SceneGeometry build_geometry(const scene::Scene& s, const SceneGeometry* previou
                                       where, sf.file, st.dropped(), st.dropped_nonfinite,
                                       st.dropped_degenerate));
     }
+    int32_t texture = -1;
+    if (!sf.albedo_texture.empty()) {
+      if (m.uvs.empty())
+        throw Error(
+            fmt::format("{}.albedo_texture: the mesh ({}) has no texture coordinates; give the OBJ "
+                        "vt coordinates or drop the texture",
+                        where, sf.mesh ? "built-in" : sf.file));
+      auto known = std::find(g.texture_paths.begin(), g.texture_paths.end(), sf.albedo_texture);
+      texture = int32_t(known - g.texture_paths.begin());
+      if (known == g.texture_paths.end()) {
+        const Texture* old = nullptr;
+        if (previous)
+          for (size_t k = 0; k < previous->texture_paths.size(); ++k)
+            if (previous->texture_paths[k] == sf.albedo_texture) old = &previous->textures[k];
+        g.textures.push_back(old ? *old : load_texture(sf.albedo_texture));
+        g.texture_paths.push_back(sf.albedo_texture);
+      }
+    }
+    g.instance_texture.push_back(texture);
     g.meshes.push_back(std::move(m));
     g.sources.push_back(source);
     g.instances.push_back({uint32_t(i), sf.transform.matrix()});
@@ -127,7 +147,29 @@ SceneGeometry build_geometry(const scene::Scene& s, const SceneGeometry* previou
       g.emitters.push_back({glm::vec3(t.v0), glm::vec3(t.v1), glm::vec3(t.v2), e});
   }
   g.bvh = build_bvh(world);
+  if (!g.textures.empty()) {
+    g.triangle_uvs.resize(g.bvh.triangles.size(), glsl::GpuTriangleUv{});
+    for (size_t k = 0; k < g.bvh.triangles.size(); ++k) {
+      const glsl::GpuTriangle& t = g.bvh.triangles[k];
+      uint32_t inst = instance_id(t);
+      if (g.instance_texture[inst] < 0) continue;
+      const Mesh& mesh = g.meshes[g.instances[inst].mesh];
+      glm::uvec3 c = mesh.triangles[primitive_id(t)];
+      // The corner order world_triangles() used: mirroring transforms swap v1 and v2.
+      if (glm::determinant(glm::mat3(g.instances[inst].object_to_world)) < 0) std::swap(c.y, c.z);
+      g.triangle_uvs[k] = {glm::vec4(mesh.uvs[c.x], mesh.uvs[c.y]), glm::vec4(mesh.uvs[c.z], 0, 0)};
+    }
+  }
   return g;
+}
+
+std::vector<glm::uvec2> packed_texels(const SceneGeometry& g, std::vector<glm::uvec4>* placement) {
+  std::vector<glm::uvec2> texels;
+  for (const Texture& t : g.textures) {
+    placement->emplace_back(uint32_t(texels.size()), t.width, t.height, 1u);
+    pack_texels(t, texels);
+  }
+  return texels;
 }
 
 }  // namespace haze::surfaces

@@ -9,6 +9,7 @@
 #include "scene/scene.hpp"
 #include "surfaces/bvh.hpp"
 #include "surfaces/mesh.hpp"
+#include "surfaces/texture.hpp"
 
 namespace haze::surfaces {
 
@@ -27,8 +28,18 @@ struct SceneGeometry {
   std::vector<Instance> instances;   // one per scene surface, same order
   Bvh bvh;
   std::vector<EmissiveTriangle> emitters;
+  // Albedo textures, each file once; instance_texture[i] indexes them (-1: none).
+  std::vector<Texture> textures;
+  std::vector<std::string> texture_paths;
+  std::vector<int32_t> instance_texture;
+  // Corner uvs of bvh.triangles (same order), only when a surface is textured.
+  std::vector<glsl::GpuTriangleUv> triangle_uvs;
   std::vector<std::string> notes;  // dropped triangles and the like
 };
+
+// The texels of all textures for the shaders' texel buffer (pack_texels, one texture after another), and
+// each texture's uvec4 {first texel, width, height, 1} for GpuInstance::texture.
+std::vector<glm::uvec2> packed_texels(const SceneGeometry& g, std::vector<glm::uvec4>* placement);
 
 // Meshes of `previous` whose source is unchanged are reused (an animation only moves them).
 SceneGeometry build_geometry(const scene::Scene& s, const SceneGeometry* previous = nullptr);

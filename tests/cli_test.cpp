@@ -229,6 +229,63 @@ TEST_F(Cli, AnimatedFramesAreWrittenAndDeterministicPerFrame) {
                         "--frames");
 }
 
+// OBJ meshes and albedo textures: each bad file gets a one-line error naming it, and outputs already
+// written stay as they were. NaN/Inf vertices and zero-area triangles are dropped with a note instead.
+TEST_F(Cli, BadMeshesAndTexturesAreNamed) {
+  fs::create_directories(dir / "out");
+  write("out/frame_0000.exr", "precious");
+  auto scene_with = [&](const std::string& surface) {
+    return write("s.json", fmt::format(R"({{
+      "camera": {{"position": [0, 0, 3], "target": [0, 0, 0]}},
+      "lights": {{"sun": {{"direction": [0.3, 1, 0.2]}}}},
+      "surfaces": [{}],
+      "render": {{"width": 16, "height": 12, "spp": 2}}
+    }})",
+                                       surface));
+  };
+  auto render_into_out = [&](const std::string& scene) {
+    return run(fmt::format("render {} --out {}", scene, (dir / "out").string()));
+  };
+  expect_one_line_error(render_into_out(scene_with(R"({"file": "missing.obj"})")), "missing.obj");
+  write("bad.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n");
+  expect_one_line_error(render_into_out(scene_with(R"({"file": "bad.obj"})")), "bad.obj");
+  write("flat.obj", "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n");
+  expect_one_line_error(render_into_out(scene_with(R"({"file": "flat.obj"})")), "flat.obj");
+  write("quad.obj", "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nf 1 2 3 4\n");
+  expect_one_line_error(
+      render_into_out(scene_with(R"({"file": "quad.obj", "albedo_texture": "missing.png"})")), "missing.png");
+  write("garbage.png", "not an image at all");
+  expect_one_line_error(
+      render_into_out(scene_with(R"({"mesh": {"kind": "plane"}, "albedo_texture": "garbage.png"})")),
+      "garbage.png");
+  // A texture needs texture coordinates; quad.obj has none (the error names the surface and the file).
+  write("one.ppm", std::string("P6 1 1 255\n") + char(200) + char(100) + char(50));
+  auto no_uvs = render_into_out(scene_with(R"({"file": "quad.obj", "albedo_texture": "one.ppm"})"));
+  expect_one_line_error(no_uvs, "surfaces[0].albedo_texture");
+  EXPECT_NE(no_uvs.out.find("quad.obj"), std::string::npos) << no_uvs.out;
+  std::stringstream ss;
+  ss << std::ifstream(dir / "out/frame_0000.exr").rdbuf();
+  EXPECT_EQ(ss.str(), "precious");
+
+  // Bad triangles are dropped, counted on the console and in stats.json; the render goes on.
+  write("some_bad.obj", "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv 1e39 0 0\nf 1 2 3\nf 1 2 4\nf 1 1 2\n");
+  auto ok = run(
+      fmt::format("render {} --out {}", scene_with(R"({"file": "some_bad.obj"})"), (dir / "ok").string()));
+  ASSERT_EQ(ok.code, 0) << ok.out;
+  EXPECT_NE(ok.out.find("dropped 2 triangles"), std::string::npos) << ok.out;
+  auto st = nlohmann::json::parse(std::ifstream(dir / "ok/stats.json"));
+  EXPECT_NE(st["notes"].dump().find("1 with NaN/Inf vertices, 1 degenerate"), std::string::npos)
+      << st["notes"];
+  // A textured primitive renders, with the texture variant and its buffers.
+  auto tex = run(fmt::format("render {} --out {}",
+                             scene_with(R"({"mesh": {"kind": "plane"}, "albedo_texture": "one.ppm"})"),
+                             (dir / "tex").string()));
+  ASSERT_EQ(tex.code, 0) << tex.out;
+  auto ts = nlohmann::json::parse(std::ifstream(dir / "tex/stats.json"));
+  EXPECT_EQ(ts["features"], "sun+surfaces+texture");
+  EXPECT_NE(ts["memory"].dump().find("albedo textures"), std::string::npos);
+}
+
 TEST_F(Cli, BenchReportsRatiosAsJson) {
   auto r = run("bench --json --size 16x16 --spp 1");
   ASSERT_EQ(r.code, 0) << r.out;

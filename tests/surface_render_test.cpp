@@ -2,11 +2,15 @@
 // geometry, and depth gradients against finite differences. Same significance rule as estimator_test:
 // alpha = 1e-4 two-sided, |z| < 3.89, fixed seeds.
 #include <gtest/gtest.h>
+#include <stb/stb_image_write.h>
 
+#include <algorithm>
 #include <cmath>
 #include <glm/gtc/matrix_transform.hpp>
 #include <iostream>
 
+#include "surfaces/texture.hpp"
+#include "temp_dir.hpp"
 #include "test_util.hpp"
 #include "volume/device_scene.hpp"
 #include "volume/glsl.hpp"
@@ -129,6 +133,174 @@ TEST(SurfaceRender, DepthGradientMatchesFiniteDifferences) {
   glm::vec3 n = glsl::oct_decode(glm::vec2(img.g(5, 5, glsl::G_NORMAL), img.g(5, 5, glsl::G_NORMAL + 1)));
   glm::vec3 expected = glm::normalize(glm::vec3(s.surfaces[0].transform.matrix() * glm::vec4(0, 0, 1, 0)));
   EXPECT_NEAR(std::abs(glm::dot(n, expected)), 1.0f, 1e-4f);
+  EXPECT_EQ(context().validation_messages(), 0u);
+}
+
+// Bilinear filtering with wrap-around, written apart from the shader's: v = 0 is the image's bottom row,
+// texel centres at half-integers.
+glm::dvec3 bilinear_reference(const surfaces::Texture& t, double u, double v) {
+  const int W = int(t.width), H = int(t.height);
+  double px = (u - std::floor(u)) * W - 0.5, py = (1 - (v - std::floor(v))) * H - 0.5;
+  int x0 = int(std::floor(px)), y0 = int(std::floor(py));
+  double fx = px - x0, fy = py - y0;
+  auto at = [&](int x, int y) {
+    return glm::dvec3(t.at(uint32_t((x % W + W) % W), uint32_t((y % H + H) % H)));
+  };
+  return (1 - fy) * ((1 - fx) * at(x0, y0) + fx * at(x0 + 1, y0)) +
+         fy * ((1 - fx) * at(x0, y0 + 1) + fx * at(x0 + 1, y0 + 1));
+}
+
+// Two planes share one 8-bit sRGB texture with different tints; the right one is mirrored (scale x = -1),
+// which reverses its triangles' winding. The G-buffer albedo must be tint * texture at the uv of the hit.
+TEST(SurfaceRender, AlbedoTextureIsFilteredAtTheHitUv) {
+  TempDir dir("haze_texture");
+  const int W = 5, H = 4;
+  unsigned char px[W * H * 3];
+  for (int i = 0; i < W * H * 3; ++i) px[i] = (unsigned char)((i * 97 + 31) % 256);
+  const std::string png = (dir.path() / "albedo.png").string();
+  ASSERT_TRUE(stbi_write_png(png.c_str(), W, H, 3, px, W * 3));
+  const glm::dvec3 tint[2] = {{1, 0.5, 0.8}, {0.9, 1, 0.7}};
+  json j = {{"camera", {{"position", {0, 0, 3.5}}, {"target", {0, 0, 0}}, {"fov_y", 40}}},
+            {"surfaces",
+             {{{"mesh", {{"kind", "plane"}, {"size", {1.8, 1.8}}}},
+               {"albedo", {tint[0].x, tint[0].y, tint[0].z}},
+               {"albedo_texture", png},
+               {"transform", {{"translate", {-1, 0, 0}}}}},
+              {{"mesh", {{"kind", "plane"}, {"size", {1.8, 1.8}}}},
+               {"albedo", {tint[1].x, tint[1].y, tint[1].z}},
+               {"albedo_texture", png},
+               {"transform", {{"translate", {1, 0, 0}}, {"scale", {-1, 1, 1}}}}}}},
+            {"render", {{"width", 48}, {"height", 24}, {"pixel_jitter", false}}}};
+  scene::Scene s = make_scene(j);
+  render::Renderer r(context(), s);
+  EXPECT_TRUE(r.features().texture);
+  r.add_samples(1);
+  render::Image img = r.resolve();
+  surfaces::Texture tex = surfaces::load_texture(png);
+  auto dirs = camera_directions(s);
+  int seen[2] = {0, 0};
+  double worst = 0;
+  for (int y = 0; y < s.render.height; ++y)
+    for (int x = 0; x < s.render.width; ++x) {
+      double depth = img.g(x, y, glsl::G_DEPTH);
+      if (depth <= 0) continue;
+      uint32_t inst = glm::floatBitsToUint(float(img.g(x, y, glsl::G_INSTANCE)));
+      ASSERT_LT(inst, 2u);
+      glm::dvec3 X = glm::dvec3(s.camera.position) + depth * dirs[size_t(y) * s.render.width + x];
+      // Object space x (the plane's u axis), undoing each placement; v follows y on both.
+      double ox = inst == 0 ? X.x + 1 : 1 - X.x;
+      glm::dvec3 expected = tint[inst] * bilinear_reference(tex, ox / 1.8 + 0.5, X.y / 1.8 + 0.5);
+      for (int c = 0; c < 3; ++c)
+        worst = std::max(worst, std::abs(img.g(x, y, glsl::G_ALBEDO + c) - expected[c]));
+      ++seen[inst];
+    }
+  EXPECT_GT(seen[0], 200);
+  EXPECT_GT(seen[1], 200);
+  EXPECT_LT(worst, 2e-3) << "largest albedo error";
+  EXPECT_EQ(context().validation_messages(), 0u);
+}
+
+// The enclosure furnace with the albedo in a texture (tint 1): a path that used the tint instead of the
+// texture at any bounce would not converge to Le / (1 - a).
+TEST(SurfaceRender, TexturedEnclosureIsAFurnace) {
+  TempDir dir("haze_texture");
+  const double Le = 0.5, a = 0.6;  // 0.6 * 65535 is an integer: exact in the shaders' 16-bit texels
+  const float texels[2 * 2 * 3] = {0.6f, 0.6f, 0.6f, 0.6f, 0.6f, 0.6f, 0.6f, 0.6f, 0.6f, 0.6f, 0.6f, 0.6f};
+  const std::string hdr = (dir.path() / "grey.hdr").string();
+  ASSERT_TRUE(stbi_write_hdr(hdr.c_str(), 2, 2, 3, texels));
+  const float stored = surfaces::load_texture(hdr).at(0, 0).r;  // RGBE rounds 0.6
+  json j = {{"camera", {{"position", {0.3, 0.2, 0.5}}, {"target", {-0.2, 0, -1}}, {"fov_y", 70}}},
+            {"surfaces",
+             {{{"mesh", {{"kind", "box"}, {"size", {4, 3, 5}}}},
+               {"albedo", {1, 1, 1}},
+               {"albedo_texture", hdr},
+               {"emission", {Le, Le, Le}}}}},
+            {"render", {{"width", 8}, {"height", 8}, {"max_depth", 256}}}};
+  scene::Scene s = make_scene(j);
+  render::Renderer r(context(), s);
+  r.add_samples(256);
+  Estimate e = estimate(r, glsl::ACC_L, glsl::ACC_L2);
+  double albedo = std::round(double(stored) * 65535) / 65535;
+  double z = z_score(e, std::vector<double>(e.mean.size(), Le / (1 - albedo)));
+  std::cout << "z = " << z << " (texture albedo " << albedo << ", nominal " << a << ")\n";
+  EXPECT_LT(std::abs(z), kZ) << "z = " << z;
+  EXPECT_EQ(context().validation_messages(), 0u);
+}
+
+// Sunlit haze under a horizontal window of open slats, vertical sun (a delta direction): the slats cast
+// sharp strips of shadow. Along each camera ray the lit intervals are exact, and on each the single-
+// scattering integral sigma_s p E exp(-sigma (t + 1 - y(t))) has a closed form.
+TEST(SurfaceRender, HazeUnderSlatsMatchesTheClosedFormSlab) {
+  const double sigma = 0.5, albedo = 0.8, g = 0.3, E = 2.0;
+  const double slat_half = 0.05;  // half the slat thickness; the chord (spacing) is 0.5
+  json j = {{"camera", {{"position", {0, 0, -2.9}}, {"target", {0.2, 0.1, 3}}, {"fov_y", 50}}},
+            {"surfaces",
+             {{{"mesh",
+                {{"kind", "window"},
+                 {"width", 4},
+                 {"height", 4},
+                 {"frame", 0},
+                 {"slats", 8},
+                 {"slat_thickness", 2 * slat_half},
+                 {"slat_angle", 0}}},
+               {"albedo", {0, 0, 0}},
+               {"transform", {{"translate", {0, 2, 0}}, {"rotate", {-90, 0, 0}}}}}}},
+            {"haze",
+             {{"sigma_t", sigma},
+              {"albedo", {albedo, albedo, albedo}},
+              {"g", g},
+              {"bounded", true},
+              {"bounds_min", {-3, -1, -3}},
+              {"bounds_max", {3, 1, 3}}}},
+            {"lights", {{"sun", {{"direction", {0, 1, 0}}, {"irradiance", E}, {"angular_diameter", 0}}}}},
+            {"render", {{"width", 16}, {"height", 12}, {"pixel_jitter", false}, {"max_depth", 1}}}};
+  scene::Scene s = make_scene(j);
+  render::Renderer r(context(), s);
+  r.add_samples(256);
+  const glm::dvec3 o(s.camera.position);
+  // Shadow strips: slat k covers world z in c_k +- slat_half for |x| < 2 (the window rotated to face up).
+  std::vector<double> strips;
+  for (int k = 0; k < 8; ++k) strips.push_back(-1.75 + 0.5 * k);
+  auto shadowed = [&](glm::dvec3 p) {
+    if (std::abs(p.x) >= 2) return false;
+    for (double c : strips)
+      if (std::abs(p.z - c) < slat_half) return true;
+    return false;
+  };
+  std::vector<double> ref;
+  double lit_fraction = 0, length = 0;
+  for (glm::dvec3 d : camera_directions(s)) {
+    // Exit of the haze box (the camera is inside it).
+    double t_exit = 1e30;
+    const glm::dvec3 lo(-3, -1, -3), hi(3, 1, 3);
+    for (int a = 0; a < 3; ++a)
+      if (d[a] != 0) t_exit = std::min(t_exit, ((d[a] > 0 ? hi[a] : lo[a]) - o[a]) / d[a]);
+    // Breakpoints where the ray crosses a strip edge or the window's x edges.
+    std::vector<double> ts = {0, t_exit};
+    auto cross = [&](int axis, double value) {
+      double t = (value - o[axis]) / d[axis];
+      if (d[axis] != 0 && t > 0 && t < t_exit) ts.push_back(t);
+    };
+    cross(0, -2), cross(0, 2);
+    for (double c : strips) cross(2, c - slat_half), cross(2, c + slat_half);
+    std::sort(ts.begin(), ts.end());
+    const double k = sigma * (1 - d.y);  // exp(-sigma t) exp(-sigma (1 - y(t))), y(t) = o.y + t d.y
+    const double p = glsl::hg_phase(float(d.y), float(g));
+    double L = 0;
+    for (size_t i = 0; i + 1 < ts.size(); ++i) {
+      double t0 = ts[i], t1 = ts[i + 1];
+      length += t1 - t0;
+      if (shadowed(o + 0.5 * (t0 + t1) * d)) continue;
+      lit_fraction += t1 - t0;
+      L += std::exp(-sigma * (1 - o.y)) * (std::exp(-k * t0) - std::exp(-k * t1)) / k;
+    }
+    ref.push_back(sigma * albedo * p * E * L);
+  }
+  Estimate e = estimate(r, glsl::ACC_L, glsl::ACC_L2);
+  double z = z_score(e, ref);
+  std::cout << "z = " << z << ", lit fraction of the rays " << lit_fraction / length << "\n";
+  EXPECT_LT(lit_fraction / length, 0.9);  // the slats really shade a good part of the rays
+  EXPECT_LT(std::abs(z), kZ) << "z = " << z << " mean[0] " << e.mean[0] << " ref[0] " << ref[0];
   EXPECT_EQ(context().validation_messages(), 0u);
 }
 

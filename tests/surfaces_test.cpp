@@ -1,6 +1,7 @@
 // Surfaces: OBJ loading and its errors, bad-triangle handling, primitives, BVH invariants on the CPU, and
 // the shaders' BVH traversal on lavapipe (validation on) against Embree's own intersector.
 #include <gtest/gtest.h>
+#include <stb/stb_image_write.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -22,6 +23,7 @@
 #include "surfaces/bvh.hpp"
 #include "surfaces/embree_ref.hpp"
 #include "surfaces/mesh.hpp"
+#include "surfaces/texture.hpp"
 
 #ifndef HAZE_DEFAULT_SPV_DIR
 #error "HAZE_DEFAULT_SPV_DIR must be defined by the build"
@@ -239,6 +241,71 @@ TEST(Mesh, NonFiniteAndZeroAreaTrianglesAreDroppedAndCounted) {
   EXPECT_EQ(os.triangles, 2u);
   EXPECT_EQ(os.dropped_nonfinite, 1u);
   EXPECT_EQ(os.dropped_degenerate, 1u);
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Textures
+
+TEST(Texture, EightBitIsSrgbAndHdrIsLinear) {
+  std::filesystem::create_directories(temp_root());
+  const std::string png = (temp_root() / "t.png").string();
+  const unsigned char px[2 * 1 * 3] = {0, 128, 255, 10, 200, 40};
+  ASSERT_TRUE(stbi_write_png(png.c_str(), 2, 1, 3, px, 6));
+  Texture t = load_texture(png);
+  ASSERT_EQ(t.width, 2u);
+  ASSERT_EQ(t.height, 1u);
+  auto srgb = [](double c) { return c <= 0.04045 ? c / 12.92 : std::pow((c + 0.055) / 1.055, 2.4); };
+  for (int i = 0; i < 6; ++i) EXPECT_NEAR(t.at(i / 3, 0)[i % 3], srgb(px[i] / 255.0), 1e-6) << i;
+
+  // RGBE holds 0.75, 0.25 and 0.125 exactly (one shared exponent, 8-bit mantissas).
+  const std::string hdr = (temp_root() / "t.hdr").string();
+  const float linear[3] = {0.75f, 0.25f, 0.125f};
+  ASSERT_TRUE(stbi_write_hdr(hdr.c_str(), 1, 1, 3, linear));
+  Texture h = load_texture(hdr);
+  EXPECT_EQ(h.at(0, 0), glm::vec3(0.75f, 0.25f, 0.125f));
+
+  // Packed for the shaders: 16-bit unorm, the tolerance the G-buffer test allows for.
+  std::vector<glm::uvec2> packed;
+  pack_texels(h, packed);
+  ASSERT_EQ(packed.size(), 1u);
+  // round(v * 65535): r 0xbfff, g 0x4000 (high half), b 0x2000.
+  EXPECT_EQ(packed[0], glm::uvec2(0x4000bfffu, 0x2000u));
+}
+
+TEST(Texture, BadFilesAreNamed) {
+  std::filesystem::create_directories(temp_root());
+  const std::string missing = (temp_root() / "none.png").string();
+  std::string e = error_of([&] { load_texture(missing); });
+  EXPECT_NE(e.find(missing), std::string::npos) << e;
+  EXPECT_NE(e.find("no such file"), std::string::npos) << e;
+
+  const std::string garbage = write_file("garbage.png", "definitely not an image");
+  e = error_of([&] { load_texture(garbage); });
+  EXPECT_NE(e.find(garbage), std::string::npos) << e;
+  EXPECT_NE(e.find("cannot decode"), std::string::npos) << e;
+
+  // A PNG cut short after its header.
+  const std::string whole = (temp_root() / "whole.png").string();
+  std::vector<unsigned char> px(64 * 64 * 3, 77);
+  ASSERT_TRUE(stbi_write_png(whole.c_str(), 64, 64, 3, px.data(), 64 * 3));
+  std::string bytes;
+  {
+    std::ifstream in(whole, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  const std::string cut = write_file("cut.png", bytes.substr(0, 60));
+  e = error_of([&] { load_texture(cut); });
+  EXPECT_NE(e.find(cut), std::string::npos) << e;
+
+  // An albedo over 1 is refused (the texel is named).
+  const std::string bright = (temp_root() / "bright.hdr").string();
+  const float hot[6] = {0.5f, 0.5f, 0.5f, 2.0f, 0.5f, 0.5f};
+  ASSERT_TRUE(stbi_write_hdr(bright.c_str(), 2, 1, 3, hot));
+  e = error_of([&] { load_texture(bright); });
+  EXPECT_NE(e.find("texel (1, 0)"), std::string::npos) << e;
+  EXPECT_NE(e.find("[0, 1]"), std::string::npos) << e;
+  for (const std::string& m : {missing, garbage, cut, bright})
+    EXPECT_EQ(error_of([&] { load_texture(m); }).find('\n'), std::string::npos) << m;
 }
 
 // ---------------------------------------------------------------------------------------------------------

@@ -26,6 +26,7 @@ std::string Features::describe() const {
   add(multi, "multi");
   add(surfaces, "surfaces");
   add(area, "area");
+  add(texture, "texture");
   return s.empty() ? "empty" : s;
 }
 
@@ -43,6 +44,8 @@ Features features_of(const scene::Scene& s) {
   f.area = std::any_of(s.surfaces.begin(), s.surfaces.end(), [](const scene::Surface& m) {
     return glm::any(glm::greaterThan(m.emission, glm::vec3(0)));
   });
+  f.texture = std::any_of(s.surfaces.begin(), s.surfaces.end(),
+                          [](const scene::Surface& m) { return !m.albedo_texture.empty(); });
   return f;
 }
 

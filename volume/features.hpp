@@ -20,12 +20,15 @@ struct Features {
   bool multi = false;     // max_depth > 1
   bool surfaces = false;  // triangle meshes: BVH, instances
   bool area = false;      // emissive surfaces (lights for NEE)
+  bool texture = false;   // albedo textures: per-triangle uvs, texels
 
   uint32_t mask() const {
     return uint32_t(hetero) | uint32_t(haze) << 1 | uint32_t(emission) << 2 | uint32_t(sun) << 3 |
            uint32_t(env) << 4 | uint32_t(local) << 5 | uint32_t(multi) << 6 | uint32_t(surfaces) << 7 |
-           uint32_t(area) << 8;
+           uint32_t(area) << 8 | uint32_t(texture) << 9;
   }
+  // The G-buffer pass's variant (shaders/surfaces/gbuffer.comp: SURFACES TEXTURE).
+  uint32_t gbuffer_mask() const { return uint32_t(surfaces) | uint32_t(texture) << 1; }
   bool lights() const { return sun || env || local || area; }
   std::string describe() const;
 };

@@ -42,4 +42,10 @@ HAZE_INLINE float srgb_encode(float c) {
   return c <= 0.0031308f ? 12.92f * c : 1.055f * pow(c, 1.0f / 2.4f) - 0.055f;
 }
 
+// Inverse of srgb_encode: an sRGB-encoded value in [0, 1] to linear.
+HAZE_INLINE float srgb_decode(float c) {
+  c = clamp(c, 0.0f, 1.0f);
+  return c <= 0.04045f ? c / 12.92f : pow((c + 0.055f) / 1.055f, 2.4f);
+}
+
 #endif

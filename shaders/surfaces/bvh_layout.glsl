@@ -26,6 +26,12 @@ struct GpuTriangle {
   vec4 v2;  // w: index in the input (world_triangles) order
 };
 
+// Texture coordinates of the corners of the GpuTriangle with the same index (textured scenes only).
+struct GpuTriangleUv {
+  vec4 uv01;  // xy: v0's uv, zw: v1's
+  vec4 uv2;   // xy: v2's uv
+};
+
 // Test/benchmark kernel records (shaders/surfaces/trace_rays.comp).
 struct GpuRay {
   vec4 origin_tmin;

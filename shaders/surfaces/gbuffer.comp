@@ -27,7 +27,15 @@ layout(std430, binding = 3) readonly buffer BvhTriangles {
 layout(std430, binding = 4) readonly buffer InstanceBuffer {
   GpuInstance instances[];
 };
-#include "surfaces/bvh.glsl"
+#if HAZE_TEXTURE
+layout(std430, binding = 5) readonly buffer TriangleUvs {
+  GpuTriangleUv bvh_uvs[];
+};
+layout(std430, binding = 6) readonly buffer Texels {
+  uvec2 texels[];
+};
+#endif
+#include "surfaces/material.glsl"
 #endif
 
 void main() {
@@ -60,7 +68,7 @@ void main() {
     ddx = nx < -1e-6f ? nX / nx - depth : 0.0f;
     ddy = ny < -1e-6f ? nX / ny - depth : 0.0f;
     GpuInstance inst = instances[h.instance];
-    albedo = inst.albedo.rgb;
+    albedo = surface_albedo(h);
     instance = h.instance;
     vec3 X_prev = (inst.world_to_prev_world * vec4(X, 1.0f)).xyz;
     prev = camera_project_direction(scene.prev_cam_right.xyz, scene.prev_cam_up.xyz,

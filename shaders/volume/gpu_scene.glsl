@@ -21,6 +21,7 @@ struct GpuInstance {
   vec4 albedo;               // rgb Lambertian reflectance
   vec4 emission;             // rgb emitted radiance
   mat4 world_to_prev_world;  // previous object_to_world * inverse(current object_to_world)
+  uvec4 texture;             // albedo texture: x first texel in the texel buffer, y width, z height; w 1 if any
 };
 
 struct GpuMedium {

@@ -62,7 +62,15 @@ layout(std430, binding = BINDING_SURFACES + 1) readonly buffer BvhTriangles {
 layout(std430, binding = BINDING_SURFACES + 2) readonly buffer InstanceBuffer {
   GpuInstance instances[];
 };
-#include "surfaces/bvh.glsl"
+#if HAZE_TEXTURE
+layout(std430, binding = BINDING_SURFACES + 3) readonly buffer TriangleUvs {
+  GpuTriangleUv bvh_uvs[];
+};
+layout(std430, binding = BINDING_SURFACES + 4) readonly buffer Texels {
+  uvec2 texels[];
+};
+#endif
+#include "surfaces/material.glsl"
 #endif
 
 layout(push_constant) uniform Push {
@@ -141,8 +149,9 @@ void main() {
   vec3 n = vec3(0.0f, 1.0f, 0.0f), alb = vec3(0.0f);
   // Surface the current walk ray reaches if no medium stops it first.
   bool walk_hit = false;
-  uint walk_instance = 0u;
-  vec3 walk_normal = vec3(0.0f);
+#if HAZE_SURFACES
+  BvhHit walk_h;
+#endif
 
   for (;;) {
     TrackResult r = track(q_o, q_d, q_t0, q_t1, q_mode, q_eval, rng);
@@ -157,7 +166,7 @@ void main() {
         L_surf = r.T * inst.emission.rgb;
         x = cam_o + cam_d * t_s;
         n = dot(cam_h.normal, cam_d) < 0.0f ? cam_h.normal : -cam_h.normal;
-        alb = inst.albedo.rgb;
+        alb = surface_albedo(cam_h);
         albedo0 = alb;
         on_surface = true;
         to_surface = true;
@@ -204,12 +213,10 @@ void main() {
         q_t1 = media_exit(x, d);
         walk_hit = false;
 #if HAZE_SURFACES
-        BvhHit wh = bvh_closest_hit(x, d, 0.0f, T_INF);
-        if (wh.triangle != BVH_NONE) {
+        walk_h = bvh_closest_hit(x, d, 0.0f, T_INF);
+        if (walk_h.triangle != BVH_NONE) {
           walk_hit = true;
-          walk_instance = wh.instance;
-          walk_normal = wh.normal;
-          q_t1 = wh.t;
+          q_t1 = walk_h.t;
         }
 #endif
         q_mode = TRACK_DELTA;
@@ -237,8 +244,8 @@ void main() {
       else if (walk_hit) {
         // Emission of surfaces reached by the walk is counted by NEE, which samples emissive triangles.
         x = x + d * q_t1;
-        n = dot(walk_normal, d) < 0.0f ? walk_normal : -walk_normal;
-        alb = instances[walk_instance].albedo.rgb;
+        n = dot(walk_h.normal, d) < 0.0f ? walk_h.normal : -walk_h.normal;
+        alb = surface_albedo(walk_h);
         on_surface = true;
         vertex = true;
       }
