@@ -24,6 +24,7 @@ const std::vector<Layer>& exr_layers() {
   auto gbuf = [](uint32_t offset) {
     return [offset](const Image& img, size_t p, int c) { return img.gbuffer[p * G_STRIDE + offset + c]; };
   };
+  auto has_denoised = [](const Image& img) { return img.surface_denoised.has_value(); };
   static const std::vector<Layer> layers = {
       {"", {"R", "G", "B"}, out(OUT_L)},
       {"volume", {"R", "G", "B"}, out(OUT_VOL)},
@@ -48,6 +49,20 @@ const std::vector<Layer>& exr_layers() {
          return id == 0xffffffffu ? -1.f : float(id);
        }},
       {"motion", {"X", "Y"}, gbuf(G_MOTION)},
+      {"depth_prev", {"Z"}, gbuf(G_PREV_DEPTH)},
+      // The surface denoiser's output (remodulated, after TAA), its history length and the variance of
+      // the filtered demodulated luminance; `denoised` adds the volume signal.
+      {"denoised", {"R", "G", "B"},
+       [](const Image& img, size_t p, int c) {
+         return img.surface_denoised->colour[p][c] + img.data[p * OUT_STRIDE + OUT_VOL + c];
+       },
+       has_denoised},
+      {"surface_denoised", {"R", "G", "B"},
+       [](const Image& img, size_t p, int c) { return img.surface_denoised->colour[p][c]; }, has_denoised},
+      {"surface_history", {"Y"}, [](const Image& img, size_t p, int) { return img.surface_denoised->history[p]; },
+       has_denoised},
+      {"surface_denoised_variance", {"Y"},
+       [](const Image& img, size_t p, int) { return img.surface_denoised->variance[p]; }, has_denoised},
   };
   return layers;
 }
@@ -83,6 +98,7 @@ void write_exr(const std::string& path, const Image& img) {
   Imf::FrameBuffer fb;
   std::vector<std::string> names;
   for (const Layer& l : exr_layers()) {
+    if (!l.present(img)) continue;
     for (size_t c = 0; c < l.channels.size(); ++c) {
       names.push_back(l.name.empty() ? l.channels[c] : l.name + "." + l.channels[c]);
       header.channels().insert(names.back(), Imf::Channel(Imf::FLOAT));

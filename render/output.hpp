@@ -20,6 +20,7 @@ struct Layer {
   std::string name;                   // "" for the final image (R, G, B)
   std::vector<std::string> channels;  // e.g. {"R","G","B"}
   std::function<float(const Image&, size_t pixel, int channel)> value;
+  std::function<bool(const Image&)> present = [](const Image&) { return true; };  // written only then
 };
 const std::vector<Layer>& exr_layers();
 

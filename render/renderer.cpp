@@ -166,6 +166,22 @@ void Renderer::set_scene(const scene::Scene& s, uint32_t frame, const scene::Sce
   resolve_ = pipeline(fmt::format("{}/volume/resolve.comp.0.spv", dir), 3, 16);
   gbuffer_ = pipeline(fmt::format("{}/surfaces/gbuffer.comp.{}.spv", dir, features_.gbuffer_mask()),
                       2 + surface_buffers, 0);
+
+  // The surface denoiser keeps its history across frames of the same size.
+  if (features_.surfaces && s.denoise.surface.enabled) {
+    if (!svgf_surface_ || svgf_surface_->width() != uint32_t(s.render.width) ||
+        svgf_surface_->height() != uint32_t(s.render.height)) {
+      svgf_surface_.reset();
+      svgf_surface_ = std::make_unique<denoise::Svgf>(ctx_, "surface", s.denoise.surface, s.render.width,
+                                                      s.render.height, /*remodulate=*/true, dir);
+      pipeline_ms_ += svgf_surface_->pipeline_ms();
+    } else {
+      svgf_surface_->set_params(s.denoise.surface);
+    }
+    tonemap_ = pipeline(fmt::format("{}/denoise/tonemap.comp.0.spv", dir), 3, 20);
+  } else {
+    svgf_surface_.reset();
+  }
 }
 
 Renderer::~Renderer() = default;
@@ -231,6 +247,28 @@ Image Renderer::resolve() {
     timer_->begin(cmd, "resolve");
     resolve_->dispatch(cmd, {&accum_buf_, &out_buf_, &ldr_buf_}, &push, (pixels + 63) / 64);
     timer_->end(cmd);
+    if (svgf_surface_) {
+      gpu::compute_barrier(cmd);
+      denoise::SvgfInputs in;
+      in.colour = &out_buf_;
+      in.colour_stride = glsl::OUT_STRIDE;
+      in.colour_offset = glsl::OUT_DEMOD;
+      in.gbuffer = &gbuffer_buf_;
+      in.prev_gbuffer = &prev_gbuffer_buf_;
+      in.motion = &gbuffer_buf_;
+      in.motion_stride = glsl::G_STRIDE;
+      in.motion_offset = glsl::G_MOTION;
+      svgf_surface_->run(cmd, timer_.get(), in);
+      // The preview shows the denoised frame: denoised surface signal + volume signal.
+      struct {
+        uint32_t pixels, volume_stride, volume_offset;
+        float exposure_scale;
+        uint32_t tonemap;
+      } tp{pixels, glsl::OUT_STRIDE, glsl::OUT_VOL, push.exposure_scale, push.tonemap};
+      timer_->begin(cmd, "tonemap");
+      tonemap_->dispatch(cmd, {&svgf_surface_->output(), &out_buf_, &ldr_buf_}, &tp, (pixels + 63) / 64);
+      timer_->end(cmd);
+    }
   });
   record_times();
   Image img;
@@ -240,6 +278,7 @@ Image Renderer::resolve() {
   img.data = out_buf_.download_vector<float>();
   img.ldr = ldr_buf_.download_vector<uint32_t>();
   img.gbuffer = gbuffer_buf_.download_vector<float>();
+  if (svgf_surface_) img.surface_denoised = svgf_surface_->download();
   return img;
 }
 

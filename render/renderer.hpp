@@ -6,9 +6,11 @@
 #include <map>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
+#include "denoise/svgf.hpp"
 #include "gpu/gpu.hpp"
 #include "scene/scene.hpp"
 #include "surfaces/scene_geometry.hpp"
@@ -26,7 +28,8 @@ struct Image {
   int samples = 0;
   std::vector<float> data;
   std::vector<float> gbuffer;  // G_STRIDE floats per pixel
-  std::vector<uint32_t> ldr;   // RGBA8, row 0 at the top
+  std::vector<uint32_t> ldr;   // RGBA8, row 0 at the top (the denoised frame when a denoiser ran)
+  std::optional<denoise::SvgfResult> surface_denoised;  // when the surface instance ran
   float at(int x, int y, uint32_t channel) const {
     return data[(size_t(y) * width + x) * glsl::OUT_STRIDE + channel];
   }
@@ -57,6 +60,8 @@ class Renderer {
   // One dispatch per sample; progress(done, total) after each.
   void add_samples(int n, const std::function<void(int, int)>& progress = {});
   int samples() const { return samples_; }
+  // Means of the samples so far, the G-buffer, and the denoisers' output: each call is one frame for them
+  // (their history advances), so call it once per frame.
   Image resolve();
   // Raw per-pixel sums (ACC_STRIDE floats per pixel) for tests.
   std::vector<float> accum() const;
@@ -86,6 +91,8 @@ class Renderer {
   const gpu::ComputePipeline* trace_ = nullptr;
   const gpu::ComputePipeline* resolve_ = nullptr;
   const gpu::ComputePipeline* gbuffer_ = nullptr;
+  const gpu::ComputePipeline* tonemap_ = nullptr;
+  std::unique_ptr<denoise::Svgf> svgf_surface_;  // scenes with surfaces, denoise.surface.enabled
   std::unique_ptr<gpu::Timer> timer_;
   std::map<std::string, PassStats> passes_;
   double pipeline_ms_ = 0;

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "denoise/params.hpp"
 #include "scene/params.hpp"
 
 namespace haze::scene {
@@ -154,6 +155,7 @@ struct Scene {
   std::optional<Haze> haze;
   Lights lights;
   RenderSettings render;
+  denoise::DenoiseSettings denoise;
   std::optional<Animation> animation;
   std::string path;      // the file it came from (for messages), "" if from memory
   std::string base_dir;  // folder used to resolve relative file paths
@@ -347,6 +349,7 @@ void reflect(V& v, Scene& s) {
   v.field("haze", s.haze, "homogeneous fog");
   v.field("lights", s.lights, "light sources");
   v.field("render", s.render, "render settings");
+  v.field("denoise", s.denoise, "the SVGF denoiser instances");
   v.field("animation", s.animation, "keyframed tracks; frames of a VDB sequence come from media[].file");
 }
 

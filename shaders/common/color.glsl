@@ -42,10 +42,21 @@ HAZE_INLINE float srgb_encode(float c) {
   return c <= 0.0031308f ? 12.92f * c : 1.055f * pow(c, 1.0f / 2.4f) - 0.055f;
 }
 
+// The preview's tone curves: 0 ACES fit, 1 Reinhard, 2 clamp (render.tonemap).
+HAZE_INLINE vec3 tonemap(vec3 x, uint op) {
+  return op == 0u ? tonemap_aces(x) : (op == 1u ? tonemap_reinhard(x) : clamp(x, vec3(0.0f), vec3(1.0f)));
+}
+
 // Inverse of srgb_encode: an sRGB-encoded value in [0, 1] to linear.
 HAZE_INLINE float srgb_decode(float c) {
   c = clamp(c, 0.0f, 1.0f);
   return c <= 0.04045f ? c / 12.92f : pow((c + 0.055f) / 1.055f, 2.4f);
+}
+
+// A tonemapped colour in [0, 1] as sRGB-encoded RGBA8 (alpha 255), red in the low byte.
+HAZE_INLINE uint pack_srgb8(vec3 m) {
+  uvec3 c8 = uvec3(round(vec3(srgb_encode(m.r), srgb_encode(m.g), srgb_encode(m.b)) * 255.0f));
+  return c8.r | (c8.g << 8u) | (c8.b << 16u) | (255u << 24u);
 }
 
 #endif

@@ -51,6 +51,7 @@ void main() {
   vec3 n = -d;
   vec3 albedo = vec3(0.0f);
   uint instance = 0xffffffffu;
+  float prev_depth = 0.0f;
   vec2 prev = camera_project_direction(scene.prev_cam_right.xyz, scene.prev_cam_up.xyz,
                                        scene.prev_cam_forward.xyz, d, size);
 #if HAZE_SURFACES
@@ -71,6 +72,7 @@ void main() {
     albedo = surface_albedo(h);
     instance = h.instance;
     vec3 X_prev = (inst.world_to_prev_world * vec4(X, 1.0f)).xyz;
+    prev_depth = length(X_prev - scene.prev_cam_position.xyz);
     prev = camera_project_direction(scene.prev_cam_right.xyz, scene.prev_cam_up.xyz,
                                     scene.prev_cam_forward.xyz, X_prev - scene.prev_cam_position.xyz, size);
   }
@@ -90,4 +92,5 @@ void main() {
   gbuf[b + G_INSTANCE] = uintBitsToFloat(instance);
   gbuf[b + G_MOTION] = motion.x;
   gbuf[b + G_MOTION + 1u] = motion.y;
+  gbuf[b + G_PREV_DEPTH] = prev_depth;
 }

@@ -3,6 +3,8 @@
 #ifndef HAZE_GPU_SCENE_GLSL
 #define HAZE_GPU_SCENE_GLSL
 
+#include "common/gbuffer.glsl"
+
 // Light types in GpuLight.position.w. Local lights come first in the light array.
 const uint LIGHT_POINT = 0u;  // point and spot (a point is a spot with no falloff)
 const uint LIGHT_SUN = 1u;
@@ -69,13 +71,5 @@ const uint OUT_L = 0u, OUT_VOL = 3u, OUT_SURF = 6u, OUT_T = 9u, OUT_DEPTH = 10u,
 const uint OUT_DEMOD = 14u, OUT_DEMOD_M2 = 17u;
 const uint OUT_STRIDE = 20u;
 
-// G-buffer per pixel, from the ray through the pixel centre (DESIGN.md section 5).
-const uint G_DEPTH = 0u;     // Euclidean distance to the first surface; 0: none
-const uint G_DDEPTH = 1u;    // depth at the +x and +y neighbours' rays on the hit plane minus depth
-const uint G_NORMAL = 3u;    // octahedral-encoded normal, facing the camera
-const uint G_ALBEDO = 5u;    // rgb
-const uint G_INSTANCE = 8u;  // instance id as float bits; 0xffffffff: none
-const uint G_MOTION = 9u;    // previous pixel position - current pixel position
-const uint G_STRIDE = 11u;
 
 #endif

@@ -41,9 +41,5 @@ void main() {
     outp[o + OUT_DEMOD_M2 + c] = accum[a + ACC_DEMOD2 + c] / n;
   }
 
-  vec3 x = mean * pc.exposure_scale;
-  vec3 m = pc.tonemap == 0u ? tonemap_aces(x)
-                            : (pc.tonemap == 1u ? tonemap_reinhard(x) : clamp(x, vec3(0.0f), vec3(1.0f)));
-  uvec3 c8 = uvec3(round(vec3(srgb_encode(m.r), srgb_encode(m.g), srgb_encode(m.b)) * 255.0f));
-  ldr[p] = c8.r | (c8.g << 8u) | (c8.b << 16u) | (255u << 24u);
+  ldr[p] = pack_srgb8(tonemap(mean * pc.exposure_scale, pc.tonemap));
 }

@@ -345,7 +345,7 @@ void main() {
   }
 
   vec3 L = L_surf + L_vol;
-  vec3 demod = L_surf / max(albedo0, vec3(1e-3f));
+  vec3 demod = L_surf / max(albedo0, vec3(DEMOD_MIN_ALBEDO));
   // Non-finite values never enter the sums (extreme inputs are clamped, not propagated).
   if (any(isnan(L)) || any(isinf(L)) || any(isnan(demod)) || any(isinf(demod))) {
     L = vec3(0.0f);

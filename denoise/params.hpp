@@ -1,0 +1,124 @@
+// Parameters of one SVGF instance (DESIGN.md section 6), declared once: the scene's JSON
+// (`denoise.surface.phi_luminance`), --set, the docs and stats.json all come from reflect() below.
+#pragma once
+
+#include <fmt/format.h>
+
+#include <string>
+
+#include "scene/params.hpp"
+
+namespace haze::denoise {
+
+struct SvgfParams {
+  bool enabled = true;
+  std::string mode = "adaptive";  // adaptive | classic (Schied et al. 2017, its own constants)
+  // Accumulation.
+  float accumulate = 0.951f;  // a: alpha = max(1 - a, 1/n)
+  float max_history = 32.f;
+  float adapt_strength = 0.901f;  // s
+  float adapt_ipr = 3.f;          // k_a
+  float adapt_low = 0.190f, adapt_up = 0.907f;
+  float firefly_bias = 0.2f, firefly_ipr = 50.f;
+  float firefly_low = 0.25f, firefly_up = 0.90f;
+  float firefly_max = 6.0e4f;  // hard clamp of the input luminance
+  // Reprojection.
+  float normal_threshold = 37.f;   // degrees
+  float depth_tolerance = 0.0264f;  // tau, relative
+  float border_history = 2.f;      // history cap when motion leaves the screen
+  // Variance estimate.
+  float variance_normal = 30.f;  // degrees
+  float variance_depth = 40.f;
+  float spatial_bias = 8.f, spatial_falloff = 3.f;
+  // Filter.
+  int iterations = 5;
+  std::string kernel = "5x5";  // 5x5 | subsampled
+  float phi_luminance = 3.f;
+  float phi_depth = 40.f;
+  float phi_normal = 30.f;  // degrees
+  float zbias_normal = 3000.f, zbias_depth = 0.f;
+  // Temporal anti-aliasing.
+  float taa_blend = 0.5f;           // weight of the clamped history
+  std::string taa_clamp = "minmax";  // minmax | variance
+  float taa_gamma = 1.f;
+};
+
+// The volume instance's starting parameters (DESIGN.md section 6 table).
+inline SvgfParams volume_defaults() {
+  SvgfParams p;
+  p.accumulate = 0.902f;
+  p.adapt_ipr = 15.f;
+  p.adapt_low = 0.056f;
+  p.adapt_up = 0.904f;
+  p.firefly_up = 0.959f;
+  p.normal_threshold = 180.f;
+  p.depth_tolerance = 0.284f;
+  p.phi_luminance = 4.f;
+  p.phi_depth = 3968.f;
+  p.phi_normal = 180.f;
+  p.zbias_normal = 0.f;
+  p.variance_normal = 180.f;
+  p.variance_depth = 200.f;
+  p.taa_blend = 0.804f;
+  return p;
+}
+
+struct DenoiseSettings {
+  SvgfParams surface;
+  SvgfParams volume = volume_defaults();
+};
+
+template <class V>
+void reflect(V& v, SvgfParams& p) {
+  using scene::Choices;
+  using scene::Range;
+  v.field("enabled", p.enabled, "run this instance (it runs only where the scene has its signal)");
+  v.field("mode", p.mode, Choices{"adaptive", "classic"},
+          "adaptive: percentile-based SVGF; classic: Schied et al. 2017 with its constants (alpha 0.2, "
+          "phi_l 4, phi_z 1, normal exponent 128); iterations, kernel and taa_* apply to both");
+  v.field("accumulate", p.accumulate, Range{0, 1}, "a in alpha = max(1 - a, 1/n)");
+  v.field("max_history", p.max_history, Range{1, 1024}, "history length cap (frames)");
+  v.field("adapt_strength", p.adapt_strength, Range{0, 1}, "s: how strongly outdated history is cut");
+  v.field("adapt_ipr", p.adapt_ipr, Range::at_least(0), "k_a: inter-percentile range factor of the adaptivity");
+  v.field("adapt_low", p.adapt_low, Range{0, 1}, "lower adaptivity percentile");
+  v.field("adapt_up", p.adapt_up, Range{0, 1}, "upper adaptivity percentile");
+  v.field("firefly_bias", p.firefly_bias, Range::at_least(0), "bias of the firefly clamp");
+  v.field("firefly_ipr", p.firefly_ipr, Range::at_least(0), "k_f: inter-percentile range factor of the clamp");
+  v.field("firefly_low", p.firefly_low, Range{0, 1}, "lower firefly percentile");
+  v.field("firefly_up", p.firefly_up, Range{0, 1}, "upper firefly percentile");
+  v.field("firefly_max", p.firefly_max, Range{0, 6.5e4}, "hard clamp of the input luminance");
+  v.field("normal_threshold", p.normal_threshold, Range{0, 180}, "reprojection: max normal change, degrees");
+  v.field("depth_tolerance", p.depth_tolerance, Range::at_least(0),
+          "reprojection: |z - z'| <= tolerance * max(z, z')");
+  v.field("border_history", p.border_history, Range{1, 1024}, "history cap where motion leaves the screen");
+  v.field("variance_normal", p.variance_normal, Range{0, 180}, "variance estimate: normal reject, degrees");
+  v.field("variance_depth", p.variance_depth, Range::at_least(0), "variance estimate: depth scale");
+  v.field("spatial_bias", p.spatial_bias, Range::at_least(0), "b in beta = clamp(b / n^f, 0, 1)");
+  v.field("spatial_falloff", p.spatial_falloff, Range::at_least(0), "f in beta = clamp(b / n^f, 0, 1)");
+  v.field("iterations", p.iterations, Range{0, 10}, "filter iterations (gap 2^i)");
+  v.field("kernel", p.kernel, Choices{"5x5", "subsampled"}, "5x5 a-trous or the 6-tap subsampled pattern");
+  v.field("phi_luminance", p.phi_luminance, Range::at_least(0), "luminance edge-stopping scale");
+  v.field("phi_depth", p.phi_depth, Range::at_least(0), "depth edge-stopping scale");
+  v.field("phi_normal", p.phi_normal, Range{0, 180}, "normal edge-stopping angle, degrees");
+  v.field("zbias_normal", p.zbias_normal, Range::at_least(0), "distance where the normal term has faded (0: never)");
+  v.field("zbias_depth", p.zbias_depth, Range::at_least(0), "distance where the depth term has faded (0: never)");
+  v.field("taa_blend", p.taa_blend, Range{0, 1}, "TAA: weight of the clamped history");
+  v.field("taa_clamp", p.taa_clamp, Choices{"minmax", "variance"},
+          "TAA: clamp history to the 3x3 min/max box or to mean +- gamma sigma");
+  v.field("taa_gamma", p.taa_gamma, Range::at_least(0), "TAA: gamma of the variance clamp");
+}
+
+inline void validate(SvgfParams& p, const scene::Where& w) {
+  if (!(p.adapt_low <= p.adapt_up))
+    w.fail("adapt_up", fmt::format("must be >= adapt_low ({}), got {}", p.adapt_low, p.adapt_up));
+  if (!(p.firefly_low <= p.firefly_up))
+    w.fail("firefly_up", fmt::format("must be >= firefly_low ({}), got {}", p.firefly_low, p.firefly_up));
+}
+
+template <class V>
+void reflect(V& v, DenoiseSettings& d) {
+  v.field("surface", d.surface, "the surface instance (demodulated surface signal, surface G-buffer)");
+  v.field("volume", d.volume, "the volume instance (light shafts; normal rejection off, weak depth terms)");
+}
+
+}  // namespace haze::denoise

@@ -1,0 +1,74 @@
+// One percentile-adaptive SVGF instance (DESIGN.md section 6): the passes percentiles, accumulate, variance,
+// N filter iterations and TAA, their buffers and pipelines. It knows images and G-buffers only; the
+// renderer runs a surface instance on the demodulated surface signal (and the volume instance will run on
+// the volume signal).
+#pragma once
+
+#include <cstdint>
+#include <glm/glm.hpp>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "denoise/params.hpp"
+#include "gpu/gpu.hpp"
+
+namespace haze::denoise {
+
+// What an instance reads. Colour and motion are `stride` floats per pixel with the rgb (xy) at `offset`;
+// the G-buffers use the G_* layout of shaders/common/gbuffer.glsl.
+struct SvgfInputs {
+  const gpu::Buffer* colour = nullptr;
+  uint32_t colour_stride = 3, colour_offset = 0;
+  const gpu::Buffer* gbuffer = nullptr;
+  const gpu::Buffer* prev_gbuffer = nullptr;
+  const gpu::Buffer* motion = nullptr;
+  uint32_t motion_stride = 2, motion_offset = 0;
+};
+
+// Downloaded output: remodulated colour after TAA, the history length, and the variance of the filtered
+// (demodulated) luminance.
+struct SvgfResult {
+  std::vector<glm::vec3> colour;
+  std::vector<float> history, variance;
+};
+
+class Svgf {
+ public:
+  // `name` ("surface", "volume") prefixes the passes' timer names and the ledger categories. `remodulate`:
+  // multiply by the G-buffer albedo at the end (the input was divided by it).
+  Svgf(gpu::Context& ctx, std::string name, const SvgfParams& params, uint32_t width, uint32_t height,
+       bool remodulate, const std::string& spv_dir);
+  ~Svgf();
+
+  void set_params(const SvgfParams& params);
+  // The next frame starts without history (a cut, a new sequence).
+  void reset() { has_history_ = false; }
+  // Records the passes of one frame (timer scopes "svgf.<name>.<pass>" when a timer is given).
+  void run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in);
+  SvgfResult download() const;
+
+  const gpu::Buffer& output() const { return taa_; }  // half rgb + sigma per pixel (see taa.comp)
+  uint32_t width() const { return width_; }
+  uint32_t height() const { return height_; }
+  const std::string& name() const { return name_; }
+  double pipeline_ms() const;
+
+ private:
+  gpu::Context& ctx_;
+  std::string name_;
+  SvgfParams params_;
+  uint32_t width_, height_;
+  bool remodulate_;
+  bool has_history_ = false;
+  uint32_t frame_ = 0;
+  // Temporaries: percentiles and two half-float ping-pong buffers. Previous-frame data: the history colour,
+  // the moments (m1, m2, n) and the TAA output.
+  gpu::Buffer params_buf_, percentiles_, temp_[2], history_, moments_, taa_;
+  std::unique_ptr<gpu::ComputePipeline> percentiles_pass_, accumulate_pass_, variance_pass_, filter_pass_,
+      taa_pass_;
+  std::string spv_dir_;
+  void create_pipelines();
+};
+
+}  // namespace haze::denoise

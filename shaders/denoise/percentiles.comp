@@ -1,0 +1,108 @@
+#version 460
+// SVGF pass 1: per 8x8 block, the luminance percentiles of the noisy input: firefly low/up over the 64
+// pixels, adaptivity low/up over the 16 means of 2x2 quads (half the noise of single pixels, so outdated
+// history stands out sooner; docs/denoising.md). Rank selection in shared memory: each lane counts the
+// values below its own, so a block is sorted with one barrier; pixels outside the image do not take part.
+#extension GL_GOOGLE_include_directive : require
+layout(local_size_x = 8, local_size_y = 8) in;
+
+#include "denoise/svgf_layout.glsl"
+
+layout(std430, binding = 0) readonly buffer Params {
+  SvgfGpuParams P;
+};
+layout(std430, binding = 1) readonly buffer Input {
+  float colour[];
+};
+layout(std430, binding = 2) writeonly buffer Percentiles {
+  vec4 percentiles[];
+};
+
+#include "denoise/svgf_common.glsl"
+
+shared float values[64];
+shared float sorted[64];
+shared float quad_values[16];
+shared float quad_sorted[16];
+shared uint count, quad_count;
+
+// The noisy input's luminance at a pixel; non-finite input counts as 0 (as the accumulation sees it).
+float input_luminance(uint p) {
+  uint b = p * P.layout_in.x + P.layout_in.y;
+  vec3 c = vec3(colour[b], colour[b + 1u], colour[b + 2u]);
+  float y = luminance(c);
+  return svgf_finite(vec4(c, y)) ? max(y, 0.0f) : 0.0f;
+}
+
+float quantile(float q, uint n) {
+  float x = clamp(q, 0.0f, 1.0f) * float(n - 1u);
+  uint i = uint(x);
+  uint j = min(i + 1u, n - 1u);
+  return mix(sorted[i], sorted[j], x - float(i));
+}
+
+float quad_quantile(float q, uint n) {
+  float x = clamp(q, 0.0f, 1.0f) * float(n - 1u);
+  uint i = uint(x);
+  uint j = min(i + 1u, n - 1u);
+  return mix(quad_sorted[i], quad_sorted[j], x - float(i));
+}
+
+bool pixel_inside(uint k) {
+  uvec2 q = gl_WorkGroupID.xy * 8u + uvec2(k % 8u, k / 8u);
+  return q.x < P.size.x && q.y < P.size.y;
+}
+
+void main() {
+  uvec2 pix = gl_GlobalInvocationID.xy;
+  uint lane = gl_LocalInvocationIndex;
+  bool inside = pix.x < P.size.x && pix.y < P.size.y;
+  values[lane] = inside ? input_luminance(pix.y * P.size.x + pix.x) : 0.0f;
+  if (lane == 0u) count = quad_count = 0u;
+  barrier();
+  if (inside) atomicAdd(count, 1u);
+  // The quad of 2x2 pixels whose top-left lane this is: its mean over the pixels inside the image.
+  uint ql = gl_LocalInvocationID.y / 2u * 4u + gl_LocalInvocationID.x / 2u;
+  bool quad_lane = inside && gl_LocalInvocationID.x % 2u == 0u && gl_LocalInvocationID.y % 2u == 0u;
+  if (quad_lane) {
+    atomicAdd(quad_count, 1u);
+    float sum = 0.0f, m = 0.0f;
+    for (uint k = 0u; k < 4u; ++k) {
+      uint l = lane + (k & 1u) + (k >> 1u) * 8u;
+      if (pixel_inside(l)) {
+        sum += values[l];
+        m += 1.0f;
+      }
+    }
+    quad_values[ql] = sum / m;
+  }
+  barrier();
+  uint n = count, nq = quad_count;
+  if (inside) {
+    // Rank among the lanes inside the image (ties broken by lane).
+    float v = values[lane];
+    uint rank = 0u;
+    for (uint k = 0u; k < 64u; ++k) {
+      if (!pixel_inside(k)) continue;
+      float w = values[k];
+      rank += (w < v || (w == v && k < lane)) ? 1u : 0u;
+    }
+    sorted[rank] = v;
+  }
+  if (quad_lane) {
+    float v = quad_values[ql];
+    uint rank = 0u;
+    for (uint k = 0u; k < 16u; ++k) {
+      if (!pixel_inside((k / 4u) * 16u + (k % 4u) * 2u)) continue;
+      float w = quad_values[k];
+      rank += (w < v || (w == v && k < ql)) ? 1u : 0u;
+    }
+    quad_sorted[rank] = v;
+  }
+  barrier();
+  if (lane == 0u) {
+    percentiles[gl_WorkGroupID.y * P.size.z + gl_WorkGroupID.x] =
+        vec4(quantile(P.percentiles.x, n), quantile(P.percentiles.y, n), quad_quantile(P.percentiles.z, nq),
+             quad_quantile(P.percentiles.w, nq));
+  }
+}
