@@ -13,6 +13,7 @@
 
 #include "bench/bench.hpp"
 #include "gpu/gpu.hpp"
+#include "render/denoise_sequence.hpp"
 #include "render/output.hpp"
 #include "render/renderer.hpp"
 #include "scene/animation.hpp"
@@ -151,6 +152,16 @@ int main(int argc, char** argv) {
   render->add_option("--frames", frames,
                      "frames A:B (both included) of an animated scene; default render.frames");
 
+  auto* dn = app.add_subcommand(
+      "denoise", "denoise an EXR sequence with the surface SVGF instance (layers: see README)");
+  std::string dn_in, dn_out;
+  std::vector<std::string> dn_sets;
+  dn->add_option("input", dn_in, "folder of EXR frames (taken in name order)")->required();
+  dn->add_option("--out", dn_out, "output directory")->required();
+  dn->add_option("--set", dn_sets,
+                 "denoiser and preview settings as scene paths: denoise.surface.*, render.exposure, "
+                 "render.tonemap (repeatable)");
+
   auto* vdbcmd = app.add_subcommand("vdb", "make and inspect .vdb files");
   vdbcmd->require_subcommand(1);
   auto* make =
@@ -228,6 +239,15 @@ int main(int argc, char** argv) {
       return 0;
     }
     if (*bench) return haze::bench::run(bo, co);
+    if (*dn) {
+      nlohmann::json j = nlohmann::json::object();
+      for (const auto& a : dn_sets) scene::apply_override(j, a, "--set");
+      scene::Scene settings = scene::from_json(j, "--set", "");
+      gpu::Context ctx(co);
+      nlohmann::json st = render::denoise_sequence(ctx, dn_in, dn_out, settings);
+      fmt::print(stderr, "wrote {} ({} frames)\n", dn_out, st["frames"].size());
+      return ctx.validation_messages() > 0 ? 3 : 0;
+    }
     fmt::print("{}", app.help());
     return 0;
   } catch (const std::exception& e) {

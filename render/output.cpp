@@ -90,37 +90,52 @@ void atomic_write(const std::string& path, F&& write) {
 
 }  // namespace
 
+void write_exr_channels(const std::string& path, int width, int height,
+                        const std::vector<std::pair<std::string, const std::vector<float>*>>& channels) {
+  Imf::Header header(width, height);
+  header.compression() = Imf::ZIP_COMPRESSION;
+  Imf::FrameBuffer fb;
+  for (const auto& [name, plane] : channels) {
+    if (plane->size() != size_t(width) * height)
+      throw Error(fmt::format("cannot write {}: channel {} has {} values for {}x{}", path, name, plane->size(),
+                              width, height));
+    header.channels().insert(name, Imf::Channel(Imf::FLOAT));
+    fb.insert(name, Imf::Slice(Imf::FLOAT, const_cast<char*>(reinterpret_cast<const char*>(plane->data())),
+                               sizeof(float), sizeof(float) * width));
+  }
+  atomic_write(path, [&](const std::string& tmp) {
+    Imf::OutputFile file(tmp.c_str(), header);
+    file.setFrameBuffer(fb);
+    file.writePixels(height);
+  });
+}
+
 void write_exr(const std::string& path, const Image& img) {
   size_t pixels = size_t(img.width) * img.height;
   std::vector<std::vector<float>> planes;
-  Imf::Header header(img.width, img.height);
-  header.compression() = Imf::ZIP_COMPRESSION;
-  Imf::FrameBuffer fb;
   std::vector<std::string> names;
   for (const Layer& l : exr_layers()) {
     if (!l.present(img)) continue;
     for (size_t c = 0; c < l.channels.size(); ++c) {
       names.push_back(l.name.empty() ? l.channels[c] : l.name + "." + l.channels[c]);
-      header.channels().insert(names.back(), Imf::Channel(Imf::FLOAT));
       planes.emplace_back(pixels);
       for (size_t p = 0; p < pixels; ++p) planes.back()[p] = l.value(img, p, int(c));
     }
   }
-  for (size_t i = 0; i < names.size(); ++i)
-    fb.insert(names[i], Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(planes[i].data()), sizeof(float),
-                                   sizeof(float) * img.width));
+  std::vector<std::pair<std::string, const std::vector<float>*>> channels;
+  for (size_t i = 0; i < names.size(); ++i) channels.emplace_back(names[i], &planes[i]);
+  write_exr_channels(path, img.width, img.height, channels);
+}
+
+void write_png_rgba8(const std::string& path, int width, int height, const std::vector<uint32_t>& rgba) {
   atomic_write(path, [&](const std::string& tmp) {
-    Imf::OutputFile file(tmp.c_str(), header);
-    file.setFrameBuffer(fb);
-    file.writePixels(img.height);
+    if (!stbi_write_png(tmp.c_str(), width, height, 4, rgba.data(), width * 4))
+      throw std::runtime_error("PNG encoder failed");
   });
 }
 
 void write_png(const std::string& path, const Image& img) {
-  atomic_write(path, [&](const std::string& tmp) {
-    if (!stbi_write_png(tmp.c_str(), img.width, img.height, 4, img.ldr.data(), img.width * 4))
-      throw std::runtime_error("PNG encoder failed");
-  });
+  write_png_rgba8(path, img.width, img.height, img.ldr);
 }
 
 void write_json(const std::string& path, const nlohmann::json& j) {

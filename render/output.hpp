@@ -26,6 +26,10 @@ const std::vector<Layer>& exr_layers();
 
 void write_exr(const std::string& path, const Image& img);
 void write_png(const std::string& path, const Image& img);
+// Float channels by name ("denoised.R", ...), each width * height values; written atomically.
+void write_exr_channels(const std::string& path, int width, int height,
+                        const std::vector<std::pair<std::string, const std::vector<float>*>>& channels);
+void write_png_rgba8(const std::string& path, int width, int height, const std::vector<uint32_t>& rgba);
 void write_json(const std::string& path, const nlohmann::json& j);
 
 // Creates dir if needed and checks that a file can be created in it; throws a one-line Error otherwise.

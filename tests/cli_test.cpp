@@ -286,6 +286,64 @@ TEST_F(Cli, BadMeshesAndTexturesAreNamed) {
   EXPECT_NE(ts["memory"].dump().find("albedo textures"), std::string::npos);
 }
 
+// haze denoise on haze's own EXR sequence reproduces the renderer's denoised layers (same inputs, same
+// instance), and bad sequences are named.
+TEST_F(Cli, DenoiseAnExrSequence) {
+  std::string s = write("anim.json", R"({
+    "camera": {"position": [0, 1, 4], "target": [0, 0.5, 0]},
+    "surfaces": [{"mesh": {"kind": "box", "size": [3, 0.2, 3]}, "albedo": [0.7, 0.6, 0.5]},
+                 {"mesh": {"kind": "sphere", "radius": 0.5}, "transform": {"translate": [0, 0.6, 0]}}],
+    "lights": {"sun": {"direction": [0.3, 1, 0.2]}, "environment": {"color": [0.3, 0.4, 0.6]}},
+    "render": {"width": 40, "height": 24, "spp": 2, "max_depth": 2},
+    "animation": {"tracks": [{"path": "camera.position",
+                              "keys": [{"frame": 0, "value": [0, 1, 4]}, {"frame": 2, "value": [0.4, 1, 3.8]}]}]}
+  })");
+  auto r = run(fmt::format("render {} --out {}", s, (dir / "r").string()));
+  ASSERT_EQ(r.code, 0) << r.out;
+  auto d = run(fmt::format("denoise {} --out {}", (dir / "r").string(), (dir / "d").string()));
+  ASSERT_EQ(d.code, 0) << d.out;
+  for (int f = 0; f <= 2; ++f) {
+    auto a = haze::render::read_exr((dir / fmt::format("r/frame_{:04d}.exr", f)).string());
+    auto b = haze::render::read_exr((dir / fmt::format("d/frame_{:04d}.exr", f)).string());
+    EXPECT_TRUE(fs::exists(dir / fmt::format("d/frame_{:04d}.png", f)));
+    for (const char* c : {"denoised.R", "surface_denoised.G", "surface_history.Y", "surface_denoised_variance.Y"}) {
+      const auto &u = a.channel(c), &v = b.channel(c);
+      double worst = 0, scale = 1e-3;
+      for (size_t i = 0; i < u.size(); ++i) {
+        worst = std::max(worst, double(std::abs(u[i] - v[i])));
+        scale = std::max(scale, double(std::abs(u[i])));
+      }
+      EXPECT_LE(worst, 1e-3 * scale) << "frame " << f << " " << c;
+    }
+  }
+  auto st = nlohmann::json::parse(std::ifstream(dir / "d/stats.json"));
+  EXPECT_EQ(st["frames"].size(), 3u);
+  EXPECT_TRUE(st["passes"].contains("svgf.surface.accumulate"));
+  // Classic mode through --set.
+  auto c = run(fmt::format("denoise {} --out {} --set denoise.surface.mode=classic", (dir / "r").string(),
+                           (dir / "c").string()));
+  ASSERT_EQ(c.code, 0) << c.out;
+  EXPECT_FALSE(nlohmann::json::parse(std::ifstream(dir / "c/stats.json"))["passes"].contains(
+      "svgf.surface.percentiles"));
+
+  expect_one_line_error(run(fmt::format("denoise {} --out {}", (dir / "none").string(), (dir / "o").string())),
+                        "none");
+  fs::create_directories(dir / "empty");
+  expect_one_line_error(run(fmt::format("denoise {} --out {}", (dir / "empty").string(), (dir / "o").string())),
+                        "no .exr files");
+  // A frame without motion vectors: the file and the layer are named.
+  fs::create_directories(dir / "nomotion");
+  std::vector<float> plane(4, 1.f);
+  haze::render::write_exr_channels((dir / "nomotion/f.exr").string(), 2, 2,
+                                   {{"R", &plane}, {"G", &plane}, {"B", &plane}, {"depth.Z", &plane}});
+  auto e = run(fmt::format("denoise {} --out {}", (dir / "nomotion").string(), (dir / "o").string()));
+  expect_one_line_error(e, "f.exr");
+  EXPECT_NE(e.out.find("no channel"), std::string::npos) << e.out;
+  expect_one_line_error(run(fmt::format("denoise {} --out {} --set denoise.surface.phi_luminance=-1",
+                                        (dir / "r").string(), (dir / "o").string())),
+                        "denoise.surface.phi_luminance");
+}
+
 TEST_F(Cli, BenchReportsRatiosAsJson) {
   auto r = run("bench --json --size 16x16 --spp 1");
   ASSERT_EQ(r.code, 0) << r.out;

@@ -1,0 +1,229 @@
+#include "render/denoise_sequence.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <map>
+
+#include "denoise/svgf.hpp"
+#include "render/output.hpp"
+#include "render/renderer.hpp"
+#include "volume/glsl.hpp"
+
+namespace haze::render {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+const char* const kNeeds =
+    "haze denoise needs surface_demod (or R/G/B), albedo, normal, depth and motion layers";
+
+// One frame's inputs in the layouts the denoiser reads.
+struct FrameInputs {
+  std::vector<float> colour;  // 3 floats per pixel, demodulated
+  std::vector<float> gbuffer;  // G_STRIDE floats per pixel
+  std::vector<float> volume;   // 3 floats per pixel
+};
+
+class Layers {
+ public:
+  Layers(const ExrImage& img, std::string file) : img_(img), file_(std::move(file)) {}
+  bool has(const std::string& name) const {
+    return std::find(img_.channels.begin(), img_.channels.end(), name) != img_.channels.end();
+  }
+  const std::vector<float>& need(const std::string& name) const {
+    if (!has(name)) throw Error(fmt::format("{}: no channel '{}'; {}", file_, name, kNeeds));
+    return img_.channel(name);
+  }
+  // A G-buffer channel: must be finite.
+  const std::vector<float>& finite(const std::string& name) const {
+    const std::vector<float>& v = need(name);
+    for (size_t p = 0; p < v.size(); ++p)
+      if (!std::isfinite(v[p]))
+        throw Error(fmt::format("{}: {} is not finite at pixel ({}, {}); the G-buffer layers must be finite",
+                                file_, name, p % img_.width, p / img_.width));
+    return v;
+  }
+
+ private:
+  const ExrImage& img_;
+  std::string file_;
+};
+
+FrameInputs frame_inputs(const ExrImage& img, const std::string& file) {
+  using namespace glsl;
+  Layers L(img, file);
+  const int W = img.width, H = img.height;
+  const size_t pixels = size_t(W) * H;
+  FrameInputs f;
+  f.gbuffer.assign(pixels * G_STRIDE, 0.f);
+  const auto& depth = L.finite("depth.Z");
+  const auto *nx = &L.finite("normal.X"), *ny = &L.finite("normal.Y"), *nz = &L.finite("normal.Z");
+  const auto *ar = &L.finite("albedo.R"), *ag = &L.finite("albedo.G"), *ab = &L.finite("albedo.B");
+  const auto *mx = &L.finite("motion.X"), *my = &L.finite("motion.Y");
+  const bool grad = L.has("depth_gradient.X") && L.has("depth_gradient.Y");
+  const std::vector<float>* gx = grad ? &L.finite("depth_gradient.X") : nullptr;
+  const std::vector<float>* gy = grad ? &L.finite("depth_gradient.Y") : nullptr;
+  const std::vector<float>* id = L.has("instance.ID") ? &L.finite("instance.ID") : nullptr;
+  const std::vector<float>* zp = L.has("depth_prev.Z") ? &L.finite("depth_prev.Z") : nullptr;
+  for (size_t p = 0; p < pixels; ++p) {
+    float* g = &f.gbuffer[p * G_STRIDE];
+    const int x = int(p % W), y = int(p / W);
+    g[G_DEPTH] = depth[p];
+    if (grad) {
+      g[G_DDEPTH] = (*gx)[p];
+      g[G_DDEPTH + 1] = (*gy)[p];
+    } else if (depth[p] > 0) {
+      auto diff = [&](size_t q) { return depth[q] > 0 ? depth[q] - depth[p] : 0.f; };
+      g[G_DDEPTH] = x + 1 < W ? diff(p + 1) : 0.f;
+      g[G_DDEPTH + 1] = y + 1 < H ? diff(p + W) : 0.f;
+    }
+    vec3 n((*nx)[p], (*ny)[p], (*nz)[p]);
+    n = length(n) > 0 ? normalize(n) : vec3(0, 0, 1);
+    vec2 e = oct_encode(n);
+    g[G_NORMAL] = e.x;
+    g[G_NORMAL + 1] = e.y;
+    g[G_ALBEDO] = (*ar)[p];
+    g[G_ALBEDO + 1] = (*ag)[p];
+    g[G_ALBEDO + 2] = (*ab)[p];
+    uint32_t inst = depth[p] > 0 ? 0u : 0xffffffffu;
+    if (id) inst = (*id)[p] < 0 ? 0xffffffffu : uint32_t((*id)[p]);
+    g[G_INSTANCE] = uintBitsToFloat(inst);
+    g[G_MOTION] = (*mx)[p];
+    g[G_MOTION + 1] = (*my)[p];
+    g[G_PREV_DEPTH] = zp ? (*zp)[p] : depth[p];
+  }
+  f.colour.resize(pixels * 3);
+  const bool demod = L.has("surface_demod.R") && L.has("surface_demod.G") && L.has("surface_demod.B");
+  const char* rgb[3] = {"R", "G", "B"};
+  for (int c = 0; c < 3; ++c) {
+    const auto& v = L.need(demod ? fmt::format("surface_demod.{}", rgb[c]) : std::string(rgb[c]));
+    const auto& a = L.need(fmt::format("albedo.{}", rgb[c]));
+    for (size_t p = 0; p < pixels; ++p) {
+      // The same divisor as the renderer's demodulation (DEMOD_MIN_ALBEDO, 1 where no surface).
+      float div = depth[p] > 0 ? std::max(a[p], DEMOD_MIN_ALBEDO) : 1.f;
+      f.colour[p * 3 + c] = demod ? v[p] : v[p] / div;
+    }
+  }
+  f.volume.assign(pixels * 3, 0.f);
+  if (L.has("volume.R") && L.has("volume.G") && L.has("volume.B"))
+    for (int c = 0; c < 3; ++c) {
+      const auto& v = img.channel(fmt::format("volume.{}", rgb[c]));
+      for (size_t p = 0; p < pixels; ++p) f.volume[p * 3 + c] = v[p];
+    }
+  return f;
+}
+
+}  // namespace
+
+nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, const std::string& out_dir,
+                                const scene::Scene& settings) {
+  std::error_code ec;
+  if (!fs::is_directory(in_dir, ec))
+    throw Error(fmt::format("{}: not a directory; pass the folder of a haze render --out or other EXR frames",
+                            in_dir));
+  std::vector<fs::path> files;
+  for (const auto& e : fs::directory_iterator(in_dir))
+    if (e.is_regular_file() && e.path().extension() == ".exr") files.push_back(e.path());
+  std::sort(files.begin(), files.end());
+  if (files.empty())
+    throw Error(fmt::format("{}: no .exr files; haze denoise reads a sequence of multi-layer EXR frames", in_dir));
+  if (fs::equivalent(in_dir, out_dir, ec))
+    throw Error(fmt::format("--out {} is the input folder; choose another so that no frame is overwritten",
+                            out_dir));
+  ensure_writable_dir(out_dir);
+
+  const std::string spv = spv_dir();
+  std::unique_ptr<denoise::Svgf> svgf;
+  gpu::Buffer colour, gbuf, prev, volume, ldr;
+  gpu::ComputePipeline tonemap(ctx, gpu::variant_spv(spv, "denoise/tonemap.comp", 0), 3, 20);
+  gpu::Timer timer(ctx);
+  std::map<std::string, std::vector<double>> times;
+  int W = 0, H = 0;
+  nlohmann::json frames = nlohmann::json::array();
+  for (size_t i = 0; i < files.size(); ++i) {
+    const std::string file = files[i].string();
+    ExrImage img = read_exr(file);
+    if (i == 0) {
+      W = img.width;
+      H = img.height;
+      const size_t pixels = size_t(W) * H;
+      colour = gpu::Buffer(ctx, "input colour", "per-frame temporaries", pixels * 12, "3 x f32");
+      volume = gpu::Buffer(ctx, "input volume", "per-frame temporaries", pixels * 12, "3 x f32");
+      gbuf = gpu::Buffer(ctx, "g-buffer", "per-frame temporaries", pixels * glsl::G_STRIDE * 4, "G_* layout");
+      prev = gpu::Buffer(ctx, "previous g-buffer", "previous-frame data", pixels * glsl::G_STRIDE * 4,
+                         "G_* layout");
+      ldr = gpu::Buffer(ctx, "preview", "outputs", pixels * 4, "RGBA8");
+      svgf = std::make_unique<denoise::Svgf>(ctx, "surface", settings.denoise.surface, W, H, true, spv);
+    } else if (img.width != W || img.height != H) {
+      throw Error(fmt::format("{}: {}x{} differs from the first frame's {}x{}; a sequence has one size", file,
+                              img.width, img.height, W, H));
+    }
+    FrameInputs in = frame_inputs(img, file);
+    colour.upload(in.colour);
+    volume.upload(in.volume);
+    gbuf.upload(in.gbuffer);
+    if (i == 0) prev.upload(in.gbuffer);
+    const auto& r = settings.render;
+    struct {
+      uint32_t pixels, volume_stride, volume_offset;
+      float exposure_scale;
+      uint32_t tonemap;
+    } tp{uint32_t(W * H), 3, 0, std::exp2(r.exposure),
+         r.tonemap == "aces" ? 0u : (r.tonemap == "reinhard" ? 1u : 2u)};
+    ctx.submit_and_wait([&](VkCommandBuffer cmd) {
+      timer.reset(cmd);
+      denoise::SvgfInputs si{&colour, 3, 0, &gbuf, &prev, &gbuf, glsl::G_STRIDE, glsl::G_MOTION};
+      svgf->run(cmd, &timer, si);
+      timer.begin(cmd, "tonemap");
+      tonemap.dispatch(cmd, {&svgf->output(), &volume, &ldr}, &tp, (tp.pixels + 63) / 64);
+      timer.end(cmd);
+      gpu::compute_barrier(cmd);
+      gpu::copy_buffer(cmd, gbuf, prev);
+    });
+    double total = 0;
+    for (auto& [pass, ms] : timer.read_ms()) {
+      times[pass].push_back(ms);
+      total += ms;
+    }
+    denoise::SvgfResult res = svgf->download();
+    const size_t pixels = size_t(W) * H;
+    std::vector<std::vector<float>> planes(8, std::vector<float>(pixels));
+    for (size_t p = 0; p < pixels; ++p) {
+      for (int c = 0; c < 3; ++c) {
+        planes[c][p] = res.colour[p][c] + in.volume[p * 3 + c];
+        planes[3 + c][p] = res.colour[p][c];
+      }
+      planes[6][p] = res.history[p];
+      planes[7][p] = res.variance[p];
+    }
+    const std::string stem = (fs::path(out_dir) / files[i].stem()).string();
+    write_exr_channels(stem + ".exr", W, H,
+                       {{"denoised.R", &planes[0]},
+                        {"denoised.G", &planes[1]},
+                        {"denoised.B", &planes[2]},
+                        {"surface_denoised.R", &planes[3]},
+                        {"surface_denoised.G", &planes[4]},
+                        {"surface_denoised.B", &planes[5]},
+                        {"surface_history.Y", &planes[6]},
+                        {"surface_denoised_variance.Y", &planes[7]}});
+    write_png_rgba8(stem + ".png", W, H, ldr.download_vector<uint32_t>());
+    frames.push_back({{"input", file}, {"gpu_ms", total}});
+  }
+  nlohmann::json passes = nlohmann::json::object();
+  for (auto& [pass, ms] : times) passes[pass] = PassStats{ms}.to_json();
+  nlohmann::json st = {{"device", ctx.describe()},
+                       {"input", in_dir},
+                       {"size", {W, H}},
+                       {"denoise", scene::to_json(settings)["denoise"]["surface"]},
+                       {"frames", frames},
+                       {"passes", passes},
+                       {"memory", ctx.ledger().to_json()}};
+  write_json((fs::path(out_dir) / "stats.json").string(), st);
+  return st;
+}
+
+}  // namespace haze::render
