@@ -7,7 +7,9 @@
 #include <chrono>
 #include <cstdio>
 #include <functional>
+#include <map>
 
+#include "denoise/svgf.hpp"
 #include "render/renderer.hpp"
 #include "scene/scene.hpp"
 #include "surfaces/embree_ref.hpp"
@@ -62,6 +64,52 @@ double copy_ms(gpu::Context& ctx, size_t floats, int reps) {
   return timed_median(ctx, reps, [&](VkCommandBuffer cmd) {
     copy.dispatch(cmd, {&src, &dst}, &count, (count + 63) / 64);
   });
+}
+
+// Median per-pass GPU times (ms) of the surface SVGF instance over `reps` frames of a synthetic input:
+// a tilted plane with 1-spp-like noise and a slow pan, after two warm-up frames.
+std::map<std::string, double> bench_svgf(gpu::Context& ctx, uint32_t W, uint32_t H, const std::string& kernel,
+                                         int reps) {
+  const size_t pixels = size_t(W) * H;
+  std::vector<float> colour(pixels * 3), g(pixels * glsl::G_STRIDE, 0.f);
+  uint32_t rng = 1;
+  for (size_t p = 0; p < pixels; ++p) {
+    const float x = float(p % W) / W, y = float(p / W) / H;
+    for (int c = 0; c < 3; ++c)
+      colour[p * 3 + c] = (0.2f + 0.6f * x) * -std::log(glsl::rng_next(rng) + 1e-7f);
+    float* q = &g[p * glsl::G_STRIDE];
+    q[glsl::G_DEPTH] = q[glsl::G_PREV_DEPTH] = 2.f + y;
+    q[glsl::G_DDEPTH + 1] = 1.f / H;
+    glm::vec2 n = glsl::oct_encode(glm::normalize(glm::vec3(0, 0.3f, 1)));
+    q[glsl::G_NORMAL] = n.x;
+    q[glsl::G_NORMAL + 1] = n.y;
+    q[glsl::G_ALBEDO] = q[glsl::G_ALBEDO + 1] = q[glsl::G_ALBEDO + 2] = 0.5f;
+    q[glsl::G_INSTANCE] = 0.f;
+    q[glsl::G_MOTION] = 0.5f;
+  }
+  gpu::Buffer in(ctx, "bench svgf colour", "benchmark", colour.size() * 4, "3 x f32");
+  gpu::Buffer gb(ctx, "bench svgf g-buffer", "benchmark", g.size() * 4, "G_* layout");
+  in.upload(colour);
+  gb.upload(g);
+  denoise::SvgfParams params;
+  params.kernel = kernel;
+  denoise::Svgf svgf(ctx, "bench", params, W, H, true, render::spv_dir());
+  gpu::Timer timer(ctx);
+  std::map<std::string, std::vector<double>> ms;
+  for (int i = 0; i < reps + 2; ++i) {
+    ctx.submit_and_wait([&](VkCommandBuffer cmd) {
+      timer.reset(cmd);
+      svgf.run(cmd, &timer, {&in, 3, 0, &gb, &gb, &gb, glsl::G_STRIDE, glsl::G_MOTION});
+    });
+    auto t = timer.read_ms();
+    if (i < 2) continue;
+    for (auto& [pass, v] : t) ms[pass.substr(std::string("svgf.bench.").size())].push_back(v);
+  }
+  std::map<std::string, double> out;
+  double total = 0;
+  for (auto& [pass, v] : ms) total += out[pass] = render::median(v);
+  out["total"] = total;
+  return out;
 }
 
 }  // namespace
@@ -175,6 +223,26 @@ int run(const Options& o, const gpu::ContextOptions& co) {
               {"gpu_rays_per_s", bvh.gpu_rays_per_s},
               {"embree_rays_per_s", bvh.embree_rays_per_s},
               {"gpu_over_embree", bvh.gpu_rays_per_s / bvh.embree_rays_per_s}};
+  // The surface SVGF instance: per-pass and total times against a copy of one of its RGBA16F images.
+  nlohmann::json dn = nlohmann::json::object();
+  for (size_t at = 0; at < o.denoise_sizes.size();) {
+    size_t comma = o.denoise_sizes.find(',', at);
+    std::string sz = o.denoise_sizes.substr(at, comma == std::string::npos ? std::string::npos : comma - at);
+    at = comma == std::string::npos ? o.denoise_sizes.size() : comma + 1;
+    int dw = 0, dh = 0;
+    if (std::sscanf(sz.c_str(), "%dx%d", &dw, &dh) != 2 || dw < 1 || dh < 1)
+      throw std::runtime_error(fmt::format("--denoise-sizes {}: expected WxH[,WxH...]", o.denoise_sizes));
+    double copy = copy_ms(ctx, size_t(dw) * dh * 2, 3);
+    nlohmann::json entry = {{"copy_ms", copy}, {"image_mb", double(dw) * dh * 8 / 1e6}};
+    for (const char* kernel : {"5x5", "subsampled"}) {
+      nlohmann::json k = nlohmann::json::object();
+      for (auto& [pass, t] : bench_svgf(ctx, dw, dh, kernel, 3))
+        k[pass] = {{"median_ms", t}, {"ratio_to_copy", t / copy}};
+      entry[kernel] = k;
+    }
+    dn[sz] = entry;
+  }
+  j["svgf_surface"] = dn;
   if (o.json) {
     fmt::print("{}\n", j.dump(2));
     return 0;
@@ -196,6 +264,15 @@ int run(const Options& o, const gpu::ContextOptions& co) {
   fmt::print("  {:<28}{:>14.1f}\n", "trace (1 spp)", t_trace / t_copy);
   fmt::print("  {:<28}{:>14.1f}\n", "resolve", t_resolve / t_copy);
   fmt::print("  {:<28}{:>14.1f}\n", "lookup (16 per pixel)", t_lookup / t_copy);
+  for (auto& [sz, entry] : dn.items()) {
+    fmt::print("svgf.surface at {} (ratios: pass time / copy of one RGBA16F image, {:.3g} MB)\n", sz,
+               entry["image_mb"].get<double>());
+    fmt::print("  {:<28}{:>14}{:>14}\n", "pass", "5x5", "subsampled");
+    for (auto& [pass, v] : entry["5x5"].items())
+      fmt::print("  {:<28}{:>14.1f}{:>14.1f}\n", pass, v["ratio_to_copy"].get<double>(),
+                 entry["subsampled"].contains(pass) ? entry["subsampled"][pass]["ratio_to_copy"].get<double>()
+                                                    : 0.0);
+  }
   return 0;
 }
 

@@ -12,6 +12,7 @@ struct Options {
   bool json = false;
   std::string size = "320x180";
   int spp = 8;
+  std::string denoise_sizes = "640x360,1920x1080";  // the SVGF instance's pass times at these sizes
 };
 
 int run(const Options& o, const gpu::ContextOptions& co);

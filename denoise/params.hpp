@@ -23,9 +23,9 @@ struct SvgfParams {
   float firefly_low = 0.25f, firefly_up = 0.90f;
   float firefly_max = 6.0e4f;  // hard clamp of the input luminance
   // Reprojection.
-  float normal_threshold = 37.f;   // degrees
+  float normal_threshold = 37.f;    // degrees
   float depth_tolerance = 0.0264f;  // tau, relative
-  float border_history = 2.f;      // history cap when motion leaves the screen
+  float border_history = 2.f;       // history cap when motion leaves the screen
   // Variance estimate.
   float variance_normal = 30.f;  // degrees
   float variance_depth = 40.f;
@@ -38,7 +38,7 @@ struct SvgfParams {
   float phi_normal = 30.f;  // degrees
   float zbias_normal = 3000.f, zbias_depth = 0.f;
   // Temporal anti-aliasing.
-  float taa_blend = 0.5f;           // weight of the clamped history
+  float taa_blend = 0.5f;            // weight of the clamped history
   std::string taa_clamp = "minmax";  // minmax | variance
   float taa_gamma = 1.f;
 };
@@ -79,11 +79,13 @@ void reflect(V& v, SvgfParams& p) {
   v.field("accumulate", p.accumulate, Range{0, 1}, "a in alpha = max(1 - a, 1/n)");
   v.field("max_history", p.max_history, Range{1, 1024}, "history length cap (frames)");
   v.field("adapt_strength", p.adapt_strength, Range{0, 1}, "s: how strongly outdated history is cut");
-  v.field("adapt_ipr", p.adapt_ipr, Range::at_least(0), "k_a: inter-percentile range factor of the adaptivity");
+  v.field("adapt_ipr", p.adapt_ipr, Range::at_least(0),
+          "k_a: inter-percentile range factor of the adaptivity");
   v.field("adapt_low", p.adapt_low, Range{0, 1}, "lower adaptivity percentile");
   v.field("adapt_up", p.adapt_up, Range{0, 1}, "upper adaptivity percentile");
   v.field("firefly_bias", p.firefly_bias, Range::at_least(0), "bias of the firefly clamp");
-  v.field("firefly_ipr", p.firefly_ipr, Range::at_least(0), "k_f: inter-percentile range factor of the clamp");
+  v.field("firefly_ipr", p.firefly_ipr, Range::at_least(0),
+          "k_f: inter-percentile range factor of the clamp");
   v.field("firefly_low", p.firefly_low, Range{0, 1}, "lower firefly percentile");
   v.field("firefly_up", p.firefly_up, Range{0, 1}, "upper firefly percentile");
   v.field("firefly_max", p.firefly_max, Range{0, 6.5e4}, "hard clamp of the input luminance");
@@ -100,8 +102,10 @@ void reflect(V& v, SvgfParams& p) {
   v.field("phi_luminance", p.phi_luminance, Range::at_least(0), "luminance edge-stopping scale");
   v.field("phi_depth", p.phi_depth, Range::at_least(0), "depth edge-stopping scale");
   v.field("phi_normal", p.phi_normal, Range{0, 180}, "normal edge-stopping angle, degrees");
-  v.field("zbias_normal", p.zbias_normal, Range::at_least(0), "distance where the normal term has faded (0: never)");
-  v.field("zbias_depth", p.zbias_depth, Range::at_least(0), "distance where the depth term has faded (0: never)");
+  v.field("zbias_normal", p.zbias_normal, Range::at_least(0),
+          "distance where the normal term has faded (0: never)");
+  v.field("zbias_depth", p.zbias_depth, Range::at_least(0),
+          "distance where the depth term has faded (0: never)");
   v.field("taa_blend", p.taa_blend, Range{0, 1}, "TAA: weight of the clamped history");
   v.field("taa_clamp", p.taa_clamp, Choices{"minmax", "variance"},
           "TAA: clamp history to the 3x3 min/max box or to mean +- gamma sigma");

@@ -50,7 +50,11 @@ glsl::SvgfGpuParams gpu_params(const SvgfParams& p, uint32_t W, uint32_t H, bool
 
 Svgf::Svgf(gpu::Context& ctx, std::string name, const SvgfParams& params, uint32_t width, uint32_t height,
            bool remodulate, const std::string& spv_dir)
-    : ctx_(ctx), name_(std::move(name)), width_(width), height_(height), remodulate_(remodulate),
+    : ctx_(ctx),
+      name_(std::move(name)),
+      width_(width),
+      height_(height),
+      remodulate_(remodulate),
       spv_dir_(spv_dir) {
   const uint64_t pixels = uint64_t(width) * height;
   const std::string temps = fmt::format("svgf.{} per-frame temporaries", name_);
@@ -76,10 +80,12 @@ Svgf::~Svgf() = default;
 void Svgf::create_pipelines() {
   const uint32_t classic = params_.mode == "classic" ? 1 : 0;
   const uint32_t subsampled = params_.kernel == "subsampled" ? 1 : 0;
-  auto spv = [&](const char* pass) { return gpu::variant_spv(spv_dir_, fmt::format("denoise/{}.comp", pass), 0); };
+  auto spv = [&](const char* pass) {
+    return gpu::variant_spv(spv_dir_, fmt::format("denoise/{}.comp", pass), 0);
+  };
   percentiles_pass_ = std::make_unique<gpu::ComputePipeline>(ctx_, spv("percentiles"), 3, 0);
-  accumulate_pass_ = std::make_unique<gpu::ComputePipeline>(ctx_, spv("accumulate"), 10, 8,
-                                                            std::vector<uint32_t>{classic});
+  accumulate_pass_ =
+      std::make_unique<gpu::ComputePipeline>(ctx_, spv("accumulate"), 10, 8, std::vector<uint32_t>{classic});
   variance_pass_ =
       std::make_unique<gpu::ComputePipeline>(ctx_, spv("variance"), 6, 0, std::vector<uint32_t>{classic});
   filter_pass_ = std::make_unique<gpu::ComputePipeline>(ctx_, spv("filter"), 4, 4,
@@ -133,8 +139,8 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
                              push, gx, gy);
   end();
   scope("variance");
-  variance_pass_->dispatch(cmd, {&params_buf_, in.gbuffer, &temp_[0], &temp_[1], &history_, &moments_}, nullptr,
-                           gx, gy);
+  variance_pass_->dispatch(cmd, {&params_buf_, in.gbuffer, &temp_[0], &temp_[1], &history_, &moments_},
+                           nullptr, gx, gy);
   end();
   // history_ now holds (colour, sigma), the first iteration's input. That iteration's output becomes the
   // next frame's history (copied back into history_ once it is no longer read).

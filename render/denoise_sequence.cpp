@@ -23,7 +23,7 @@ const char* const kNeeds =
 
 // One frame's inputs in the layouts the denoiser reads.
 struct FrameInputs {
-  std::vector<float> colour;  // 3 floats per pixel, demodulated
+  std::vector<float> colour;   // 3 floats per pixel, demodulated
   std::vector<float> gbuffer;  // G_STRIDE floats per pixel
   std::vector<float> volume;   // 3 floats per pixel
 };
@@ -130,10 +130,11 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
     if (e.is_regular_file() && e.path().extension() == ".exr") files.push_back(e.path());
   std::sort(files.begin(), files.end());
   if (files.empty())
-    throw Error(fmt::format("{}: no .exr files; haze denoise reads a sequence of multi-layer EXR frames", in_dir));
+    throw Error(
+        fmt::format("{}: no .exr files; haze denoise reads a sequence of multi-layer EXR frames", in_dir));
   if (fs::equivalent(in_dir, out_dir, ec))
-    throw Error(fmt::format("--out {} is the input folder; choose another so that no frame is overwritten",
-                            out_dir));
+    throw Error(
+        fmt::format("--out {} is the input folder; choose another so that no frame is overwritten", out_dir));
   ensure_writable_dir(out_dir);
 
   const std::string spv = spv_dir();

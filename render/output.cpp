@@ -52,17 +52,24 @@ const std::vector<Layer>& exr_layers() {
       {"depth_prev", {"Z"}, gbuf(G_PREV_DEPTH)},
       // The surface denoiser's output (remodulated, after TAA), its history length and the variance of
       // the filtered demodulated luminance; `denoised` adds the volume signal.
-      {"denoised", {"R", "G", "B"},
+      {"denoised",
+       {"R", "G", "B"},
        [](const Image& img, size_t p, int c) {
          return img.surface_denoised->colour[p][c] + img.data[p * OUT_STRIDE + OUT_VOL + c];
        },
        has_denoised},
-      {"surface_denoised", {"R", "G", "B"},
-       [](const Image& img, size_t p, int c) { return img.surface_denoised->colour[p][c]; }, has_denoised},
-      {"surface_history", {"Y"}, [](const Image& img, size_t p, int) { return img.surface_denoised->history[p]; },
+      {"surface_denoised",
+       {"R", "G", "B"},
+       [](const Image& img, size_t p, int c) { return img.surface_denoised->colour[p][c]; },
        has_denoised},
-      {"surface_denoised_variance", {"Y"},
-       [](const Image& img, size_t p, int) { return img.surface_denoised->variance[p]; }, has_denoised},
+      {"surface_history",
+       {"Y"},
+       [](const Image& img, size_t p, int) { return img.surface_denoised->history[p]; },
+       has_denoised},
+      {"surface_denoised_variance",
+       {"Y"},
+       [](const Image& img, size_t p, int) { return img.surface_denoised->variance[p]; },
+       has_denoised},
   };
   return layers;
 }
@@ -97,8 +104,8 @@ void write_exr_channels(const std::string& path, int width, int height,
   Imf::FrameBuffer fb;
   for (const auto& [name, plane] : channels) {
     if (plane->size() != size_t(width) * height)
-      throw Error(fmt::format("cannot write {}: channel {} has {} values for {}x{}", path, name, plane->size(),
-                              width, height));
+      throw Error(fmt::format("cannot write {}: channel {} has {} values for {}x{}", path, name,
+                              plane->size(), width, height));
     header.channels().insert(name, Imf::Channel(Imf::FLOAT));
     fb.insert(name, Imf::Slice(Imf::FLOAT, const_cast<char*>(reinterpret_cast<const char*>(plane->data())),
                                sizeof(float), sizeof(float) * width));

@@ -306,7 +306,8 @@ TEST_F(Cli, DenoiseAnExrSequence) {
     auto a = haze::render::read_exr((dir / fmt::format("r/frame_{:04d}.exr", f)).string());
     auto b = haze::render::read_exr((dir / fmt::format("d/frame_{:04d}.exr", f)).string());
     EXPECT_TRUE(fs::exists(dir / fmt::format("d/frame_{:04d}.png", f)));
-    for (const char* c : {"denoised.R", "surface_denoised.G", "surface_history.Y", "surface_denoised_variance.Y"}) {
+    for (const char* c :
+         {"denoised.R", "surface_denoised.G", "surface_history.Y", "surface_denoised_variance.Y"}) {
       const auto &u = a.channel(c), &v = b.channel(c);
       double worst = 0, scale = 1e-3;
       for (size_t i = 0; i < u.size(); ++i) {
@@ -326,11 +327,12 @@ TEST_F(Cli, DenoiseAnExrSequence) {
   EXPECT_FALSE(nlohmann::json::parse(std::ifstream(dir / "c/stats.json"))["passes"].contains(
       "svgf.surface.percentiles"));
 
-  expect_one_line_error(run(fmt::format("denoise {} --out {}", (dir / "none").string(), (dir / "o").string())),
-                        "none");
+  expect_one_line_error(
+      run(fmt::format("denoise {} --out {}", (dir / "none").string(), (dir / "o").string())), "none");
   fs::create_directories(dir / "empty");
-  expect_one_line_error(run(fmt::format("denoise {} --out {}", (dir / "empty").string(), (dir / "o").string())),
-                        "no .exr files");
+  expect_one_line_error(
+      run(fmt::format("denoise {} --out {}", (dir / "empty").string(), (dir / "o").string())),
+      "no .exr files");
   // A frame without motion vectors: the file and the layer are named.
   fs::create_directories(dir / "nomotion");
   std::vector<float> plane(4, 1.f);
@@ -345,12 +347,14 @@ TEST_F(Cli, DenoiseAnExrSequence) {
 }
 
 TEST_F(Cli, BenchReportsRatiosAsJson) {
-  auto r = run("bench --json --size 16x16 --spp 1");
+  auto r = run("bench --json --size 16x16 --spp 1 --denoise-sizes 24x16");
   ASSERT_EQ(r.code, 0) << r.out;
   auto j = nlohmann::json::parse(r.out.substr(r.out.find('{')));
   EXPECT_GT(j["passes"]["trace"]["ratio_to_copy"].get<double>(), 0.0);
   EXPECT_GT(j["bvh"]["gpu_over_embree"].get<double>(), 0.0);
   EXPECT_GT(j["density_lookups_per_s"].get<double>(), 0.0);
+  for (const char* kernel : {"5x5", "subsampled"})
+    EXPECT_GT(j["svgf_surface"]["24x16"][kernel]["total"]["ratio_to_copy"].get<double>(), 0.0) << kernel;
 }
 
 }  // namespace

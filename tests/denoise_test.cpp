@@ -57,7 +57,8 @@ struct Frame {
 class Rig {
  public:
   Rig(int W, int H, const SvgfParams& p)
-      : W_(W), H_(H),
+      : W_(W),
+        H_(H),
         colour_(context(), "test colour", "test", size_t(W) * H * 12, "3 x f32"),
         g_(context(), "test g-buffer", "test", size_t(W) * H * glsl::G_STRIDE * 4, "G"),
         prev_(context(), "test previous g-buffer", "test", size_t(W) * H * glsl::G_STRIDE * 4, "G"),

@@ -157,7 +157,8 @@ void main() {
     if (CLASSIC == 0u && (any(lessThan(q, vec2(0.0f))) || any(greaterThanEqual(q, size)))) {
       // Motion leaving the screen: walk back along it to the border and reuse the history there.
       vec2 o = vec2(pix) + 0.5f, d = q - o;
-      d = mix(d, mix(vec2(-1e-12f), vec2(1e-12f), greaterThanEqual(d, vec2(0.0f))), lessThan(abs(d), vec2(1e-12f)));
+      d = mix(d, mix(vec2(-1e-12f), vec2(1e-12f), greaterThanEqual(d, vec2(0.0f))),
+              lessThan(abs(d), vec2(1e-12f)));
       vec2 lo = (vec2(0.5f) - o) / d, hi = (size - 0.5f - o) / d;
       vec2 t_exit = max(lo, hi);  // per axis, where the segment leaves the [0.5, size - 0.5] box
       float t = clamp(min(t_exit.x, t_exit.y), 0.0f, 1.0f);
@@ -167,7 +168,8 @@ void main() {
     vec2 f = q - 0.5f;
     ivec2 i0 = ivec2(floor(f));
     vec2 fr = f - vec2(i0);
-    float w[4] = float[4]((1.0f - fr.x) * (1.0f - fr.y), fr.x * (1.0f - fr.y), (1.0f - fr.x) * fr.y, fr.x * fr.y);
+    float w[4] =
+        float[4]((1.0f - fr.x) * (1.0f - fr.y), fr.x * (1.0f - fr.y), (1.0f - fr.x) * fr.y, fr.x * fr.y);
     float w_valid[4];
     float total = 0.0f;
     for (int t = 0; t < 4; ++t) {
@@ -247,7 +249,8 @@ void main() {
       float Y_h = luminance(h.colour);
       float r = P.accumulate.w * (pct.w - pct.z);
       float s = P.accumulate.z;
-      float m = (1.0f - s * linstep(pct.w, pct.w + r, Y_h)) * (1.0f - s * (1.0f - linstep(pct.z - r, pct.z, Y_h)));
+      float m =
+          (1.0f - s * linstep(pct.w, pct.w + r, Y_h)) * (1.0f - s * (1.0f - linstep(pct.z - r, pct.z, Y_h)));
       if (m < 1.0f) cap = min(cap, 1.0f / (1.0f - m));
     }
     n = min(h.n + 1.0f, max(cap, 1.0f));

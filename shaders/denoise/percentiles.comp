@@ -24,7 +24,6 @@ shared float values[64];
 shared float sorted[64];
 shared float quad_values[16];
 shared float quad_sorted[16];
-shared uint count, quad_count;
 
 // The noisy input's luminance at a pixel; non-finite input counts as 0 (as the accumulation sees it).
 float input_luminance(uint p) {
@@ -48,59 +47,53 @@ float quad_quantile(float q, uint n) {
   return mix(quad_sorted[i], quad_sorted[j], x - float(i));
 }
 
-bool pixel_inside(uint k) {
-  uvec2 q = gl_WorkGroupID.xy * 8u + uvec2(k % 8u, k / 8u);
-  return q.x < P.size.x && q.y < P.size.y;
-}
-
 void main() {
   uvec2 pix = gl_GlobalInvocationID.xy;
+  uvec2 local = gl_LocalInvocationID.xy;
   uint lane = gl_LocalInvocationIndex;
-  bool inside = pix.x < P.size.x && pix.y < P.size.y;
-  values[lane] = inside ? input_luminance(pix.y * P.size.x + pix.x) : 0.0f;
-  if (lane == 0u) count = quad_count = 0u;
+  // The block's extent inside the image; pixels outside hold +inf, so they sort after every real value.
+  uvec2 extent = min(uvec2(8u), P.size.xy - gl_WorkGroupID.xy * 8u);
+  const float INF = uintBitsToFloat(0x7f800000u);
+  bool inside = all(lessThan(local, extent));
+  values[lane] = inside ? input_luminance(pix.y * P.size.x + pix.x) : INF;
   barrier();
-  if (inside) atomicAdd(count, 1u);
-  // The quad of 2x2 pixels whose top-left lane this is: its mean over the pixels inside the image.
-  uint ql = gl_LocalInvocationID.y / 2u * 4u + gl_LocalInvocationID.x / 2u;
-  bool quad_lane = inside && gl_LocalInvocationID.x % 2u == 0u && gl_LocalInvocationID.y % 2u == 0u;
+  // The quad of 2x2 pixels whose top-left lane this is: the mean of its pixels inside the image.
+  uvec2 quad = local / 2u;
+  uint ql = quad.y * 4u + quad.x;
+  bool quad_lane = local.x % 2u == 0u && local.y % 2u == 0u;
   if (quad_lane) {
-    atomicAdd(quad_count, 1u);
     float sum = 0.0f, m = 0.0f;
     for (uint k = 0u; k < 4u; ++k) {
-      uint l = lane + (k & 1u) + (k >> 1u) * 8u;
-      if (pixel_inside(l)) {
-        sum += values[l];
+      uvec2 q = local + uvec2(k & 1u, k >> 1u);
+      if (all(lessThan(q, extent))) {
+        sum += values[q.y * 8u + q.x];
         m += 1.0f;
       }
     }
-    quad_values[ql] = sum / m;
+    quad_values[ql] = m > 0.0f ? sum / m : INF;
   }
   barrier();
-  uint n = count, nq = quad_count;
-  if (inside) {
-    // Rank among the lanes inside the image (ties broken by lane).
-    float v = values[lane];
-    uint rank = 0u;
-    for (uint k = 0u; k < 64u; ++k) {
-      if (!pixel_inside(k)) continue;
-      float w = values[k];
-      rank += (w < v || (w == v && k < lane)) ? 1u : 0u;
-    }
-    sorted[rank] = v;
+  // Rank selection (ties broken by lane).
+  float v = values[lane];
+  uint rank = 0u;
+  for (uint k = 0u; k < 64u; ++k) {
+    float w = values[k];
+    rank += (w < v || (w == v && k < lane)) ? 1u : 0u;
   }
+  sorted[rank] = v;
   if (quad_lane) {
-    float v = quad_values[ql];
-    uint rank = 0u;
+    float u = quad_values[ql];
+    uint qrank = 0u;
     for (uint k = 0u; k < 16u; ++k) {
-      if (!pixel_inside((k / 4u) * 16u + (k % 4u) * 2u)) continue;
       float w = quad_values[k];
-      rank += (w < v || (w == v && k < ql)) ? 1u : 0u;
+      qrank += (w < u || (w == u && k < ql)) ? 1u : 0u;
     }
-    quad_sorted[rank] = v;
+    quad_sorted[qrank] = u;
   }
   barrier();
   if (lane == 0u) {
+    uint n = extent.x * extent.y;
+    uint nq = ((extent.x + 1u) / 2u) * ((extent.y + 1u) / 2u);
     percentiles[gl_WorkGroupID.y * P.size.z + gl_WorkGroupID.x] =
         vec4(quantile(P.percentiles.x, n), quantile(P.percentiles.y, n), quad_quantile(P.percentiles.z, nq),
              quad_quantile(P.percentiles.w, nq));

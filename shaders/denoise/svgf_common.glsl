@@ -32,29 +32,27 @@ float linstep(float a, float b, float x) {
 
 // What the passes need of a G-buffer pixel.
 struct GPixel {
-  float z;   // 0: no surface
-  vec2 dz;   // depth change towards +x and +y
+  float z;  // 0: no surface
+  vec2 dz;  // depth change towards +x and +y
   vec3 n;
   vec3 albedo;
   uint id;
   float z_prev;  // distance of this point from the previous camera (0: unknown)
 };
 
-#define SVGF_G_LOAD(buf, p)                                                                       \
-  GPixel g;                                                                                      \
-  uint b = (p) * G_STRIDE;                                                                       \
-  g.z = buf[b + G_DEPTH];                                                                        \
-  g.dz = vec2(buf[b + G_DDEPTH], buf[b + G_DDEPTH + 1u]);                                        \
-  g.n = oct_decode(vec2(buf[b + G_NORMAL], buf[b + G_NORMAL + 1u]));                             \
-  g.albedo = vec3(buf[b + G_ALBEDO], buf[b + G_ALBEDO + 1u], buf[b + G_ALBEDO + 2u]);            \
-  g.id = floatBitsToUint(buf[b + G_INSTANCE]);                                                   \
-  g.z_prev = buf[b + G_PREV_DEPTH];                                                              \
+#define SVGF_G_LOAD(buf, p)                                                           \
+  GPixel g;                                                                           \
+  uint b = (p)*G_STRIDE;                                                              \
+  g.z = buf[b + G_DEPTH];                                                             \
+  g.dz = vec2(buf[b + G_DDEPTH], buf[b + G_DDEPTH + 1u]);                             \
+  g.n = oct_decode(vec2(buf[b + G_NORMAL], buf[b + G_NORMAL + 1u]));                  \
+  g.albedo = vec3(buf[b + G_ALBEDO], buf[b + G_ALBEDO + 1u], buf[b + G_ALBEDO + 2u]); \
+  g.id = floatBitsToUint(buf[b + G_INSTANCE]);                                        \
+  g.z_prev = buf[b + G_PREV_DEPTH];                                                   \
   return g;
 
 #ifdef SVGF_GBUFFER
-GPixel g_load(uint p) {
-  SVGF_G_LOAD(gbuf, p)
-}
+GPixel g_load(uint p){SVGF_G_LOAD(gbuf, p)}
 #endif
 #ifdef SVGF_PREV_GBUFFER
 GPixel g_load_prev(uint p) {

@@ -4,17 +4,17 @@
 #define HAZE_SVGF_LAYOUT_GLSL
 
 struct SvgfGpuParams {
-  uvec4 size;         // width, height, percentile blocks x, y
-  uvec4 layout_in;    // colour: float stride and offset per pixel; motion: stride, offset
-  uvec4 frame;        // x: frame index (random taps), y: filter iteration, z: remodulate by albedo, w: has history
-  vec4 accumulate;    // x: a (alpha = max(1 - a, 1/n)), y: max history, z: adaptivity strength s, w: k_a
-  vec4 percentiles;   // firefly low, up; adaptivity low, up (quantiles in [0, 1])
-  vec4 firefly;       // x: bias, y: k_f, z: hard clamp (max luminance)
-  vec4 reproject;     // x: cos of the normal threshold, y: depth tolerance tau, z: border history cap
-  vec4 variance;      // x: cos of the normal reject, y: depth accept (phi), z: spatial bias b, w: falloff f
-  vec4 filter_phi;    // x: phi_l, y: phi_z, z: cos of phi_n (adaptive) or exponent (classic), w: epsilon
-  vec4 filter_fade;   // x: zbias normals, y: zbias depth
-  vec4 taa;           // x: blend (weight of the history), y: clamp (0 min/max, 1 mean +- gamma sigma), z: gamma
+  uvec4 size;       // width, height, percentile blocks x, y
+  uvec4 layout_in;  // colour: float stride and offset per pixel; motion: stride, offset
+  uvec4 frame;  // x: frame index (random taps), y: filter iteration, z: remodulate by albedo, w: has history
+  vec4 accumulate;   // x: a (alpha = max(1 - a, 1/n)), y: max history, z: adaptivity strength s, w: k_a
+  vec4 percentiles;  // firefly low, up; adaptivity low, up (quantiles in [0, 1])
+  vec4 firefly;      // x: bias, y: k_f, z: hard clamp (max luminance)
+  vec4 reproject;    // x: cos of the normal threshold, y: depth tolerance tau, z: border history cap
+  vec4 variance;     // x: cos of the normal reject, y: depth accept (phi), z: spatial bias b, w: falloff f
+  vec4 filter_phi;   // x: phi_l, y: phi_z, z: cos of phi_n (adaptive) or exponent (classic), w: epsilon
+  vec4 filter_fade;  // x: zbias normals, y: zbias depth
+  vec4 taa;  // x: blend (weight of the history), y: clamp (0 min/max, 1 mean +- gamma sigma), z: gamma
 };
 
 // Per-pixel words of the half-float buffers: uvec2(packHalf2x16(r, g), packHalf2x16(b, a)).
