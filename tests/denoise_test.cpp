@@ -217,7 +217,9 @@ TEST(Svgf, FirefliesDoNotSpreadAndNonFiniteInputNeverReachesTheOutput) {
       worst = std::max(worst, std::abs(out / ref - 1));
     }
     std::cout << m << ": worst relative error of a firefly's 9x9 neighbourhood " << worst << "\n";
-    if (std::string(m) == "adaptive") EXPECT_LT(worst, 0.25);
+    if (std::string(m) == "adaptive") {
+      EXPECT_LT(worst, 0.25);
+    }
   }
   EXPECT_EQ(context().validation_messages(), 0u);
 }
@@ -287,10 +289,8 @@ TEST(Svgf, MotionLeavingTheScreenReusesTheBorder) {
       inner += r.history[size_t(y) * W + W / 4] / H;
     }
     std::cout << m << ": history length at the entering edge " << edge << ", inside " << inner << "\n";
-    if (std::string(m) == "adaptive")
-      EXPECT_NEAR(edge, 2.0, 1e-3);
-    else
-      EXPECT_NEAR(edge, 1.0, 1e-3);
+    const double expected_edge = std::string(m) == "adaptive" ? 2.0 : 1.0;
+    EXPECT_NEAR(edge, expected_edge, 1e-3);
     EXPECT_NEAR(inner, 8.0, 1e-3);
   }
   EXPECT_EQ(context().validation_messages(), 0u);
