@@ -136,6 +136,53 @@ TEST(TruncatedExponential, SamplesFollowTheirPdf) {
   }
 }
 
+TEST(NormalCdf, MatchesStdErfcAndInverts) {
+  for (double x = -12; x <= 6; x += 0.37) {
+    double ref = 0.5 * std::erfc(-x / std::sqrt(2.0));
+    EXPECT_NEAR(normal_cdf(float(x)) / ref, 1.0, 2e-5) << x;  // float exp of x^2 / 2
+    // The upper tail is not needed (truncated_gaussian mirrors into the lower one); float p near 1 has no
+    // digits left for it.
+    if (ref > 1e-30 && ref < 0.99)
+      EXPECT_NEAR(normal_cdf_inverse(float(ref)), x, 2e-4 * std::max(1.0, std::abs(x))) << x;
+  }
+}
+
+// Guide lobes: a Gaussian truncated to [t0, t1], inside, across and far beyond the interval on both sides.
+TEST(TruncatedGaussian, IsNormalisedAndSamplesFollowThePdf) {
+  struct Case {
+    float mu, sigma, t0, t1;
+  };
+  const Case cases[] = {
+      {5, 1, 0, 10},  {0.5f, 2, 0, 3},          {-3, 1, 0, 4},        {12, 1.5f, 0, 8}, {40, 2, 0, 10},
+      {-40, 3, 1, 2}, {2, 1e-3f, 1.999f, 2.5f}, {3, 0.5f, 2.9f, 3.1f}};
+  for (const Case& c : cases) {
+    TruncatedGaussian g = truncated_gaussian(c.mu, c.sigma, c.t0, c.t1);
+    double norm = simpson([&](double t) { return truncated_gaussian_pdf(g, float(t)); }, c.t0, c.t1, 200000);
+    EXPECT_NEAR(norm, 1.0, 2e-3) << c.mu << " " << c.sigma;
+    uint state = rng_init(17u, uint(c.mu * 10 + 100), uint(c.sigma * 1000));
+    std::vector<double> ts;
+    for (int i = 0; i < 200000; ++i) {
+      float t = truncated_gaussian_sample(g, rng_next(state));
+      ASSERT_TRUE(std::isfinite(t));
+      ASSERT_GE(t, c.t0);
+      ASSERT_LE(t, c.t1);
+      ASSERT_GT(truncated_gaussian_pdf(g, t), 0.f) << t;
+      ts.push_back(t);
+    }
+    int df = 0;
+    double chi2 = chi2_statistic(
+        ts, c.t0, c.t1, 100, [&](double t) { return truncated_gaussian_pdf(g, float(t)); }, &df);
+    EXPECT_LT(chi2, chi2_critical(df)) << c.mu << " " << c.sigma << " [" << c.t0 << ", " << c.t1 << "]";
+  }
+  // Degenerate inputs fall back to uniform (or nothing), never NaN.
+  TruncatedGaussian flat = truncated_gaussian(1, 0, 0, 2);
+  EXPECT_FLOAT_EQ(truncated_gaussian_pdf(flat, 1.3f), 0.5f);
+  EXPECT_TRUE(std::isfinite(truncated_gaussian_sample(flat, 0.3f)));
+  TruncatedGaussian empty = truncated_gaussian(1, 1, 2, 2);
+  EXPECT_EQ(truncated_gaussian_pdf(empty, 2.f), 0.f);
+  EXPECT_TRUE(std::isfinite(truncated_gaussian_sample(empty, 0.5f)));
+}
+
 TEST(Cone, UniformConeStaysInsideAndIsUniformInCosine) {
   vec3 axis = normalize(vec3(1.f, 2.f, -0.5f));
   float cos_max = std::cos(0.3f);

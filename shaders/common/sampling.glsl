@@ -102,4 +102,110 @@ HAZE_INLINE float truncated_exp_pdf_tau(float tau, float tau_total) {
   return exp(-tau) / max(one_minus_exp_neg(tau_total), 1e-30f);
 }
 
+// Complementary error function (Numerical Recipes' erfcc: relative error below 1.2e-7 everywhere); GLSL
+// has no erf.
+HAZE_INLINE float erfc_approx(float x) {
+  float z = abs(x);
+  float t = 1.0f / (1.0f + 0.5f * z);
+  float r =
+      t * exp(-z * z - 1.26551223f +
+              t * (1.00002368f +
+                   t * (0.37409196f +
+                        t * (0.09678418f +
+                             t * (-0.18628806f +
+                                  t * (0.27886807f +
+                                       t * (-1.13520398f +
+                                            t * (1.48851587f + t * (-0.82215223f + t * 0.17087277f)))))))));
+  return x >= 0.0f ? r : 2.0f - r;
+}
+
+// Standard normal CDF, accurate in relative terms in the lower tail.
+HAZE_INLINE float normal_cdf(float x) {
+  return 0.5f * erfc_approx(-x * 0.70710678118654752f);
+}
+
+// Inverse of normal_cdf for p in (0, 1) (Acklam's rational approximation, relative error 1.2e-9 before
+// float rounding).
+HAZE_INLINE float normal_cdf_inverse(float p) {
+  p = clamp(p, 1e-37f, 1.0f - 6e-8f);
+  const float p_low = 0.02425f;
+  if (p < p_low || p > 1.0f - p_low) {
+    float q = sqrt(-2.0f * log(p < p_low ? p : 1.0f - p));
+    float x = (((((-7.784894002430293e-03f * q - 3.223964580411365e-01f) * q - 2.400758277161838e+00f) * q -
+                 2.549732539343734e+00f) *
+                    q +
+                4.374664141464968e+00f) *
+                   q +
+               2.938163982698783e+00f) /
+              ((((7.784695709041462e-03f * q + 3.224671290700398e-01f) * q + 2.445134137142996e+00f) * q +
+                3.754408661907416e+00f) *
+                   q +
+               1.0f);
+    return p < p_low ? x : -x;
+  }
+  float q = p - 0.5f;
+  float r = q * q;
+  return (((((-3.969683028665376e+01f * r + 2.209460984245205e+02f) * r - 2.759285104469687e+02f) * r +
+            1.383577518672690e+02f) *
+               r -
+           3.066479806614716e+01f) *
+              r +
+          2.506628277459239e+00f) *
+         q /
+         (((((-5.447609879822406e+01f * r + 1.615858368580409e+02f) * r - 1.556989798598866e+02f) * r +
+            6.680131188771972e+01f) *
+               r -
+           1.328068155288572e+01f) *
+              r +
+          1.0f);
+}
+
+// A Gaussian N(mu, sigma) truncated to [t0, t1] and renormalised: no sample falls outside, none is lost.
+// Intervals right of the mean are mirrored so that the CDF differences are taken in the lower tail, where
+// they keep their relative precision. Where the interval holds less than 1e-30 of the Gaussian (or sigma
+// is not positive) the distribution is uniform on [t0, t1] instead; sampler and pdf agree on that choice.
+struct TruncatedGaussian {
+  float mu, sigma, t0, t1;
+  bool mirrored;  // the standardised interval [a, b] is [-(t1 - mu), -(t0 - mu)] / sigma
+  float a, b;     // standardised bounds after mirroring
+  float cdf_a;    // normal_cdf(a)
+  float mass;     // normal_cdf(b) - normal_cdf(a); 0: uniform fallback
+};
+
+HAZE_INLINE TruncatedGaussian truncated_gaussian(float mu, float sigma, float t0, float t1) {
+  TruncatedGaussian g;
+  g.mu = mu;
+  g.sigma = sigma;
+  g.t0 = t0;
+  g.t1 = t1;
+  g.mass = 0.0f;
+  g.a = 0.0f;
+  g.b = 0.0f;
+  g.cdf_a = 0.0f;
+  g.mirrored = false;
+  if (!(sigma > 0.0f) || !(t1 > t0)) return g;
+  float a = (t0 - mu) / sigma, b = (t1 - mu) / sigma;
+  g.mirrored = a + b > 0.0f;
+  g.a = g.mirrored ? -b : a;
+  g.b = g.mirrored ? -a : b;
+  g.cdf_a = normal_cdf(g.a);
+  float m = normal_cdf(g.b) - g.cdf_a;
+  g.mass = m > 1e-30f ? m : 0.0f;
+  return g;
+}
+
+HAZE_INLINE float truncated_gaussian_sample(TruncatedGaussian g, float u) {
+  if (g.mass == 0.0f) return mix(g.t0, g.t1, u);
+  float x = normal_cdf_inverse(g.cdf_a + u * g.mass);
+  x = clamp(x, g.a, g.b);
+  return clamp(g.mu + g.sigma * (g.mirrored ? -x : x), g.t0, g.t1);
+}
+
+HAZE_INLINE float truncated_gaussian_pdf(TruncatedGaussian g, float t) {
+  if (!(t >= g.t0 && t <= g.t1)) return 0.0f;
+  if (g.mass == 0.0f) return g.t1 > g.t0 ? 1.0f / (g.t1 - g.t0) : 0.0f;
+  float x = (t - g.mu) / g.sigma;
+  return 0.39894228040143268f * exp(-0.5f * x * x) / (g.sigma * g.mass);
+}
+
 #endif
