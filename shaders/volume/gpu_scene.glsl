@@ -23,7 +23,7 @@ struct GpuInstance {
   vec4 albedo;               // rgb Lambertian reflectance
   vec4 emission;             // rgb emitted radiance
   mat4 world_to_prev_world;  // previous object_to_world * inverse(current object_to_world)
-  uvec4 texture;             // albedo texture: x first texel in the texel buffer, y width, z height; w 1 if any
+  uvec4 texture;  // albedo texture: x first texel in the texel buffer, y width, z height; w 1 if any
 };
 
 struct GpuMedium {
@@ -70,6 +70,5 @@ const uint ACC_STRIDE = 27u;
 const uint OUT_L = 0u, OUT_VOL = 3u, OUT_SURF = 6u, OUT_T = 9u, OUT_DEPTH = 10u, OUT_VAR = 11u;
 const uint OUT_DEMOD = 14u, OUT_DEMOD_M2 = 17u;
 const uint OUT_STRIDE = 20u;
-
 
 #endif
