@@ -7,13 +7,6 @@
 
 namespace haze::denoise {
 
-namespace glsl {
-using namespace glm;
-using uint = glm::uint;
-#include "shaders/denoise/svgf_layout.glsl"
-static_assert(sizeof(SvgfGpuParams) == 11 * 16);
-}  // namespace glsl
-
 namespace {
 
 constexpr uint32_t kBlock = 8;
@@ -25,7 +18,7 @@ float cos_deg(float deg) {
 glsl::SvgfGpuParams gpu_params(const SvgfParams& p, uint32_t W, uint32_t H, bool remodulate) {
   glsl::SvgfGpuParams g{};
   g.size = glm::uvec4(W, H, (W + kBlock - 1) / kBlock, (H + kBlock - 1) / kBlock);
-  g.frame = glm::uvec4(0, 0, remodulate ? 1 : 0, 0);
+  g.flags = glm::uvec4(remodulate ? 1 : 0, 0, 0, 0);
   g.accumulate = glm::vec4(p.accumulate, p.max_history, p.adapt_strength, p.adapt_ipr);
   g.percentiles = glm::vec4(p.firefly_low, p.firefly_up, p.adapt_low, p.adapt_up);
   g.firefly = glm::vec4(p.firefly_bias, p.firefly_ipr, p.firefly_max, 0);
@@ -96,8 +89,10 @@ void Svgf::create_pipelines() {
 void Svgf::set_params(const SvgfParams& params) {
   bool rebuild = !accumulate_pass_ || params.mode != params_.mode || params.kernel != params_.kernel;
   params_ = params;
-  glsl::SvgfGpuParams g = gpu_params(params_, width_, height_, remodulate_);
-  params_buf_.upload(&g, sizeof(g));
+  const glm::uvec4 layout = gpu_.layout_in;
+  gpu_ = gpu_params(params_, width_, height_, remodulate_);
+  gpu_.layout_in = layout;
+  gpu_dirty_ = true;
   if (rebuild) create_pipelines();
 }
 
@@ -111,11 +106,14 @@ double Svgf::pipeline_ms() const {
 void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
   if (!in.colour || !in.gbuffer || !in.prev_gbuffer || !in.motion)
     throw gpu::Error(fmt::format("svgf.{}: an input buffer is missing", name_));
-  // The strides and offsets live in the parameter buffer; they change only with the inputs' layout.
-  glsl::SvgfGpuParams g = gpu_params(params_, width_, height_, remodulate_);
-  g.layout_in = glm::uvec4(in.colour_stride, in.colour_offset, in.motion_stride, in.motion_offset);
-  vkCmdUpdateBuffer(cmd, params_buf_.handle(), 0, sizeof(g), &g);
-  gpu::compute_barrier(cmd);
+  // The parameter buffer changes only with set_params() or the inputs' layout.
+  const glm::uvec4 layout(in.colour_stride, in.colour_offset, in.motion_stride, in.motion_offset);
+  if (gpu_dirty_ || gpu_.layout_in != layout) {
+    gpu_.layout_in = layout;
+    vkCmdUpdateBuffer(cmd, params_buf_.handle(), 0, sizeof(gpu_), &gpu_);
+    gpu::compute_barrier(cmd);
+    gpu_dirty_ = false;
+  }
 
   const uint32_t gx = (width_ + 7) / 8, gy = (height_ + 7) / 8;
   auto scope = [&](const char* pass) {

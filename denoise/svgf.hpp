@@ -15,6 +15,14 @@
 
 namespace haze::denoise {
 
+// shaders/denoise/svgf_layout.glsl compiled as C++: the parameter block the passes read.
+namespace glsl {
+using namespace glm;
+using uint = glm::uint;
+#include "shaders/denoise/svgf_layout.glsl"
+static_assert(sizeof(SvgfGpuParams) == 11 * 16);
+}  // namespace glsl
+
 // What an instance reads. Colour and motion are `stride` floats per pixel with the rgb (xy) at `offset`;
 // the G-buffers use the G_* layout of shaders/common/gbuffer.glsl.
 struct SvgfInputs {
@@ -61,6 +69,8 @@ class Svgf {
   uint32_t width_, height_;
   bool remodulate_;
   bool has_history_ = false;
+  glsl::SvgfGpuParams gpu_{};  // params_ as the shaders read them
+  bool gpu_dirty_ = true;      // gpu_ not yet in params_buf_
   uint32_t frame_ = 0;
   // Temporaries: percentiles and two half-float ping-pong buffers. Previous-frame data: the history colour,
   // the moments (m1, m2, n) and the TAA output.

@@ -168,13 +168,7 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
     volume.upload(in.volume);
     gbuf.upload(in.gbuffer);
     if (i == 0) prev.upload(in.gbuffer);
-    const auto& r = settings.render;
-    struct {
-      uint32_t pixels, volume_stride, volume_offset;
-      float exposure_scale;
-      uint32_t tonemap;
-    } tp{uint32_t(W * H), 3, 0, std::exp2(r.exposure),
-         r.tonemap == "aces" ? 0u : (r.tonemap == "reinhard" ? 1u : 2u)};
+    const TonemapPush tp = tonemap_push(settings.render, uint32_t(W * H), 3, 0);
     ctx.submit_and_wait([&](VkCommandBuffer cmd) {
       timer.reset(cmd);
       denoise::SvgfInputs si{&colour, 3, 0, &gbuf, &prev, &gbuf, glsl::G_STRIDE, glsl::G_MOTION};

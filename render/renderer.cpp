@@ -184,6 +184,12 @@ void Renderer::set_scene(const scene::Scene& s, uint32_t frame, const scene::Sce
   }
 }
 
+TonemapPush tonemap_push(const scene::RenderSettings& r, uint32_t pixels, uint32_t volume_stride,
+                         uint32_t volume_offset) {
+  const uint32_t op = r.tonemap == "aces" ? 0u : (r.tonemap == "reinhard" ? 1u : 2u);
+  return {pixels, volume_stride, volume_offset, std::exp2(r.exposure), op};
+}
+
 Renderer::~Renderer() = default;
 
 void Renderer::append_surface_buffers(std::vector<const gpu::Buffer*>& b) const {
@@ -234,14 +240,13 @@ void Renderer::add_samples(int n, const std::function<void(int, int)>& progress)
 Image Renderer::resolve() {
   const auto& r = scene_.render;
   uint32_t pixels = uint32_t(r.width) * uint32_t(r.height);
+  // The preview of the noisy means, or (below) of the denoised frame: denoised surface + volume signal.
+  const TonemapPush tp = tonemap_push(r, pixels, glsl::OUT_STRIDE, glsl::OUT_VOL);
   struct {
     uint32_t pixels, samples;
     float exposure_scale;
     uint32_t tonemap;
-  } push{pixels, uint32_t(samples_), std::exp2(r.exposure),
-         r.tonemap == "aces"       ? 0u
-         : r.tonemap == "reinhard" ? 1u
-                                   : 2u};
+  } push{pixels, uint32_t(samples_), tp.exposure_scale, tp.tonemap};
   ctx_.submit_and_wait([&](VkCommandBuffer cmd) {
     timer_->reset(cmd);
     timer_->begin(cmd, "resolve");
@@ -259,12 +264,6 @@ Image Renderer::resolve() {
       in.motion_stride = glsl::G_STRIDE;
       in.motion_offset = glsl::G_MOTION;
       svgf_surface_->run(cmd, timer_.get(), in);
-      // The preview shows the denoised frame: denoised surface signal + volume signal.
-      struct {
-        uint32_t pixels, volume_stride, volume_offset;
-        float exposure_scale;
-        uint32_t tonemap;
-      } tp{pixels, glsl::OUT_STRIDE, glsl::OUT_VOL, push.exposure_scale, push.tonemap};
       timer_->begin(cmd, "tonemap");
       tonemap_->dispatch(cmd, {&svgf_surface_->output(), &out_buf_, &ldr_buf_}, &tp, (pixels + 63) / 64);
       timer_->end(cmd);

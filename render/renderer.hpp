@@ -38,6 +38,17 @@ struct Image {
   }
 };
 
+// Push constants of shaders/denoise/tonemap.comp: exposure 2^render.exposure and the tone curve (0 aces,
+// 1 reinhard, 2 clamp) of render.tonemap; the volume signal is `volume_stride` floats per pixel at
+// `volume_offset`.
+struct TonemapPush {
+  uint32_t pixels, volume_stride, volume_offset;
+  float exposure_scale;
+  uint32_t tonemap;
+};
+TonemapPush tonemap_push(const scene::RenderSettings& r, uint32_t pixels, uint32_t volume_stride,
+                         uint32_t volume_offset);
+
 // Median of a sample (the middle pair's mean for even sizes); 0 for an empty one.
 double median(std::vector<double> v);
 

@@ -253,21 +253,17 @@ Scene load(const std::string& path, const std::vector<std::string>& overrides) {
   std::string base_dir = fs::absolute(fs::path(path)).parent_path().lexically_normal().string();
   Scene s = read_scene(j, ctx, base_dir);
   s.path = path;
-  for (size_t i = 0; i < s.media.size(); ++i) {
-    const std::string& f = s.media[i].file;
-    if (!f.empty() && !is_sequence(f) && !fs::is_regular_file(f, ec)) {
-      ctx.fail(
-          fmt::format("media[{}].file", i),
-          fmt::format("no such file: {} (relative paths start at the scene file's folder {})", f, base_dir));
-    }
-  }
+  // Files named by the scene must exist (a sequence's frames are checked below, per frame).
+  auto require_file = [&](const std::string& key, const std::string& f) {
+    if (!f.empty() && !fs::is_regular_file(f, ec))
+      ctx.fail(key, fmt::format("no such file: {} (relative paths start at the scene file's folder {})", f,
+                                base_dir));
+  };
+  for (size_t i = 0; i < s.media.size(); ++i)
+    if (!is_sequence(s.media[i].file)) require_file(fmt::format("media[{}].file", i), s.media[i].file);
   for (size_t i = 0; i < s.surfaces.size(); ++i) {
-    const scene::Surface& m = s.surfaces[i];
-    for (auto [key, f] : {std::pair{"file", &m.file}, std::pair{"albedo_texture", &m.albedo_texture}})
-      if (!f->empty() && !fs::is_regular_file(*f, ec))
-        ctx.fail(fmt::format("surfaces[{}].{}", i, key),
-                 fmt::format("no such file: {} (relative paths start at the scene file's folder {})", *f,
-                             base_dir));
+    require_file(fmt::format("surfaces[{}].file", i), s.surfaces[i].file);
+    require_file(fmt::format("surfaces[{}].albedo_texture", i), s.surfaces[i].albedo_texture);
   }
   auto [first, last] = frame_range(s);
   detail::check_frame_files(s, first, last, ctx);

@@ -140,7 +140,7 @@ std::vector<glsl::GpuTriangle> world_triangles(std::span<const Mesh> meshes,
   for (uint32_t i = 0; i < instances.size(); ++i) {
     const Mesh& mesh = meshes[instances[i].mesh];
     const glm::mat4& m = instances[i].object_to_world;
-    const bool mirror = glm::determinant(glm::mat3(m)) < 0;
+    const bool mirror = mirrors(m);
     for (uint32_t p = 0; p < mesh.triangles.size(); ++p) {
       glm::uvec3 t = mesh.triangles[p];
       if (mirror) std::swap(t.y, t.z);

@@ -164,7 +164,7 @@ void append(Mesh& dst, const Mesh& src, const glm::mat4& transform) {
     if (uvs) dst.uvs.push_back(src.uvs[i]);
   }
   // A mirroring transform reverses the winding; swapping two corners keeps the front where the normals are.
-  const bool mirror = glm::determinant(glm::mat3(transform)) < 0;
+  const bool mirror = mirrors(transform);
   for (glm::uvec3 t : src.triangles)
     dst.triangles.push_back(mirror ? glm::uvec3(t.x, t.z, t.y) + base : t + base);
 }

@@ -61,6 +61,12 @@ Mesh window(float width, float height, float frame, uint32_t slats, float slat_t
 // a regular grid. Vertices are shared, so the panel is watertight between holes.
 Mesh perforated_panel(float width, float height, uint32_t holes_x, uint32_t holes_y, float hole_size);
 
+// Whether an affine transform mirrors (negative determinant): its triangles then get their winding, v1 and
+// v2, swapped so that the front stays the normals' side.
+inline bool mirrors(const glm::mat4& transform) {
+  return glm::determinant(glm::mat3(transform)) < 0;
+}
+
 // Appends src transformed by `transform` (affine, invertible) to dst; normals use the inverse transpose, and
 // a mirroring transform has its triangles' winding reversed so the front stays the normals' side. dst keeps
 // normals/uvs only when both meshes have them (or dst was empty).

@@ -156,7 +156,7 @@ SceneGeometry build_geometry(const scene::Scene& s, const SceneGeometry* previou
       const Mesh& mesh = g.meshes[g.instances[inst].mesh];
       glm::uvec3 c = mesh.triangles[primitive_id(t)];
       // The corner order world_triangles() used: mirroring transforms swap v1 and v2.
-      if (glm::determinant(glm::mat3(g.instances[inst].object_to_world)) < 0) std::swap(c.y, c.z);
+      if (mirrors(g.instances[inst].object_to_world)) std::swap(c.y, c.z);
       g.triangle_uvs[k] = {glm::vec4(mesh.uvs[c.x], mesh.uvs[c.y]), glm::vec4(mesh.uvs[c.z], 0, 0)};
     }
   }

@@ -13,6 +13,7 @@
 #include <sstream>
 #include <string>
 
+#include "expect_error.hpp"
 #include "temp_dir.hpp"
 
 namespace fs = std::filesystem;
@@ -23,18 +24,7 @@ namespace hs = haze::scene;
 
 namespace {
 
-std::string expect_error(const std::function<void()>& f, std::initializer_list<std::string> pieces) {
-  try {
-    f();
-  } catch (const Error& e) {
-    std::string msg = e.what();
-    EXPECT_EQ(msg.find('\n'), std::string::npos) << "message is not one line: " << msg;
-    for (const auto& p : pieces) EXPECT_NE(msg.find(p), std::string::npos) << "'" << p << "' not in: " << msg;
-    return msg;
-  }
-  ADD_FAILURE() << "no haze::scene::Error thrown";
-  return {};
-}
+using haze::test::expect_error;
 
 json procedural_medium() {
   return {{"procedural", {{"kind", "sphere"}}}};

@@ -21,9 +21,8 @@ layout(std430, binding = 2) writeonly buffer Percentiles {
 #include "denoise/svgf_common.glsl"
 
 shared float values[64];
-shared float sorted[64];
 shared float quad_values[16];
-shared float quad_sorted[16];
+shared float sorted[80];  // the 64 pixels, then the 16 quad means
 
 // The noisy input's luminance at a pixel; non-finite input counts as 0 (as the accumulation sees it).
 float input_luminance(uint p) {
@@ -33,18 +32,12 @@ float input_luminance(uint p) {
   return svgf_finite(vec4(c, y)) ? max(y, 0.0f) : 0.0f;
 }
 
-float quantile(float q, uint n) {
+// Quantile q of the n sorted values starting at sorted[first], interpolated between ranks.
+float quantile(float q, uint first, uint n) {
   float x = clamp(q, 0.0f, 1.0f) * float(n - 1u);
   uint i = uint(x);
   uint j = min(i + 1u, n - 1u);
-  return mix(sorted[i], sorted[j], x - float(i));
-}
-
-float quad_quantile(float q, uint n) {
-  float x = clamp(q, 0.0f, 1.0f) * float(n - 1u);
-  uint i = uint(x);
-  uint j = min(i + 1u, n - 1u);
-  return mix(quad_sorted[i], quad_sorted[j], x - float(i));
+  return mix(sorted[first + i], sorted[first + j], x - float(i));
 }
 
 void main() {
@@ -88,14 +81,14 @@ void main() {
       float w = quad_values[k];
       qrank += (w < u || (w == u && k < ql)) ? 1u : 0u;
     }
-    quad_sorted[qrank] = u;
+    sorted[64u + qrank] = u;
   }
   barrier();
   if (lane == 0u) {
     uint n = extent.x * extent.y;
     uint nq = ((extent.x + 1u) / 2u) * ((extent.y + 1u) / 2u);
     percentiles[gl_WorkGroupID.y * P.size.z + gl_WorkGroupID.x] =
-        vec4(quantile(P.percentiles.x, n), quantile(P.percentiles.y, n), quad_quantile(P.percentiles.z, nq),
-             quad_quantile(P.percentiles.w, nq));
+        vec4(quantile(P.percentiles.x, 0u, n), quantile(P.percentiles.y, 0u, n),
+             quantile(P.percentiles.z, 64u, nq), quantile(P.percentiles.w, 64u, nq));
   }
 }

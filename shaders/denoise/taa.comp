@@ -34,9 +34,12 @@ pc;
 #define SVGF_GBUFFER
 #include "denoise/svgf_common.glsl"
 
+vec3 remodulation(uint p) {
+  return P.flags.x != 0u ? demod_albedo(g_load(p)) : vec3(1.0f);
+}
+
 vec3 current(uint p) {
-  vec3 c = unpack_half4(filtered[p]).rgb;
-  return P.frame.z != 0u ? c * demod_albedo(g_load(p)) : c;
+  return unpack_half4(filtered[p]).rgb * remodulation(p);
 }
 
 void main() {
@@ -45,8 +48,9 @@ void main() {
   if (pix.x >= W || pix.y >= H) return;
   uint p = pix.y * W + pix.x;
   vec4 f = unpack_half4(filtered[p]);
-  vec3 cur = current(p);
-  float sigma = f.w * (P.frame.z != 0u ? luminance(demod_albedo(g_load(p))) : 1.0f);
+  vec3 albedo = remodulation(p);
+  vec3 cur = f.rgb * albedo;
+  float sigma = f.w * luminance(albedo);
   vec3 result = cur;
   uint mb = p * P.layout_in.z + P.layout_in.w;
   vec2 q = vec2(pix) + 0.5f + vec2(motion[mb], motion[mb + 1u]);
