@@ -142,8 +142,9 @@ TEST(NormalCdf, MatchesStdErfcAndInverts) {
     EXPECT_NEAR(normal_cdf(float(x)) / ref, 1.0, 2e-5) << x;  // float exp of x^2 / 2
     // The upper tail is not needed (truncated_gaussian mirrors into the lower one); float p near 1 has no
     // digits left for it.
-    if (ref > 1e-30 && ref < 0.99)
+    if (ref > 1e-30 && ref < 0.99) {
       EXPECT_NEAR(normal_cdf_inverse(float(ref)), x, 2e-4 * std::max(1.0, std::abs(x))) << x;
+    }
   }
 }
 
