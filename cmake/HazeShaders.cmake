@@ -2,7 +2,7 @@
 #   haze_shader(SOURCE volume/trace.comp FEATURES HETERO EMISSION ... [REQUIRES EMISSION:HETERO ...])
 # compiles every subset of FEATURES as defines HAZE_<F>=1; the variant's file name carries a bit mask
 # in FEATURES order (trace.comp.5.spv = features 0 and 2). A:B in REQUIRES skips the subsets that have A
-# without B (variants no scene can ask for). Includes are tracked with --depfile.
+# without B, A:B|C those that have A without B or C (variants no scene can ask for). Includes are tracked with --depfile.
 set(HAZE_SPV_DIR ${CMAKE_BINARY_DIR}/spv)
 set_property(GLOBAL PROPERTY HAZE_SPV_FILES "")
 
@@ -19,11 +19,18 @@ function(haze_shader)
     foreach(req IN LISTS S_REQUIRES)
       string(REPLACE ":" ";" pair ${req})
       list(GET pair 0 a)
-      list(GET pair 1 b)
+      list(GET pair 1 alternatives)
       list(FIND S_FEATURES ${a} ia)
-      list(FIND S_FEATURES ${b} ib)
       math(EXPR has_a "(${mask} >> ${ia}) & 1")
-      math(EXPR has_b "(${mask} >> ${ib}) & 1")
+      string(REPLACE "|" ";" alternatives ${alternatives})
+      set(has_b 0)
+      foreach(b IN LISTS alternatives)
+        list(FIND S_FEATURES ${b} ib)
+        math(EXPR bit "(${mask} >> ${ib}) & 1")
+        if(bit)
+          set(has_b 1)
+        endif()
+      endforeach()
       if(has_a AND NOT has_b)
         set(skip TRUE)
       endif()

@@ -140,7 +140,8 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
   const std::string spv = spv_dir();
   std::unique_ptr<denoise::Svgf> svgf;
   gpu::Buffer colour, gbuf, prev, volume, ldr;
-  gpu::ComputePipeline tonemap(ctx, gpu::variant_spv(spv, "denoise/tonemap.comp", 0), 3, 20);
+  gpu::ComputePipeline tonemap(ctx, gpu::variant_spv(spv, "denoise/tonemap.comp", 0), 3, sizeof(TonemapPush),
+                               {1u, 0u});
   gpu::Timer timer(ctx);
   std::map<std::string, std::vector<double>> times;
   int W = 0, H = 0;
@@ -168,7 +169,7 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
     volume.upload(in.volume);
     gbuf.upload(in.gbuffer);
     if (i == 0) prev.upload(in.gbuffer);
-    const TonemapPush tp = tonemap_push(settings.render, uint32_t(W * H), 3, 0);
+    const TonemapPush tp = tonemap_push(settings.render, uint32_t(W * H), {0, 0}, {3, 0});
     ctx.submit_and_wait([&](VkCommandBuffer cmd) {
       timer.reset(cmd);
       denoise::SvgfInputs si{&colour, 3, 0, &gbuf, &prev, &gbuf, glsl::G_STRIDE, glsl::G_MOTION};

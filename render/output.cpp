@@ -25,6 +25,7 @@ const std::vector<Layer>& exr_layers() {
     return [offset](const Image& img, size_t p, int c) { return img.gbuffer[p * G_STRIDE + offset + c]; };
   };
   auto has_denoised = [](const Image& img) { return img.surface_denoised.has_value(); };
+  auto has_volume_denoised = [](const Image& img) { return img.volume_denoised.has_value(); };
   static const std::vector<Layer> layers = {
       {"", {"R", "G", "B"}, out(OUT_L)},
       {"volume", {"R", "G", "B"}, out(OUT_VOL)},
@@ -50,14 +51,24 @@ const std::vector<Layer>& exr_layers() {
        }},
       {"motion", {"X", "Y"}, gbuf(G_MOTION)},
       {"depth_prev", {"Z"}, gbuf(G_PREV_DEPTH)},
-      // The surface denoiser's output (remodulated, after TAA), its history length and the variance of
-      // the filtered demodulated luminance; `denoised` adds the volume signal.
+      {"virtual_point_depth", {"Z"}, out(OUT_VPDEPTH)},
+      {"volume_motion",
+       {"X", "Y"},
+       [](const Image& img, size_t p, int c) { return img.volume_motion[p][c]; },
+       [](const Image& img) { return !img.volume_motion.empty(); }},
+      // The composite of the denoised signals: surface (remodulated, with its transmittance) + volume, each
+      // the noisy mean where its instance did not run.
       {"denoised",
        {"R", "G", "B"},
        [](const Image& img, size_t p, int c) {
-         return img.surface_denoised->colour[p][c] + img.data[p * OUT_STRIDE + OUT_VOL + c];
+         float s = img.surface_denoised ? img.surface_denoised->colour[p][c]
+                                        : img.data[p * OUT_STRIDE + OUT_SURF + c];
+         float v =
+             img.volume_denoised ? img.volume_denoised->colour[p][c] : img.data[p * OUT_STRIDE + OUT_VOL + c];
+         return s + v;
        },
-       has_denoised},
+       [](const Image& img) { return img.surface_denoised.has_value() || img.volume_denoised.has_value(); }},
+      // Each instance's output (after TAA), its history length and the variance of its filtered luminance.
       {"surface_denoised",
        {"R", "G", "B"},
        [](const Image& img, size_t p, int c) { return img.surface_denoised->colour[p][c]; },
@@ -70,6 +81,18 @@ const std::vector<Layer>& exr_layers() {
        {"Y"},
        [](const Image& img, size_t p, int) { return img.surface_denoised->variance[p]; },
        has_denoised},
+      {"volume_denoised",
+       {"R", "G", "B"},
+       [](const Image& img, size_t p, int c) { return img.volume_denoised->colour[p][c]; },
+       has_volume_denoised},
+      {"volume_history",
+       {"Y"},
+       [](const Image& img, size_t p, int) { return img.volume_denoised->history[p]; },
+       has_volume_denoised},
+      {"volume_denoised_variance",
+       {"Y"},
+       [](const Image& img, size_t p, int) { return img.volume_denoised->variance[p]; },
+       has_volume_denoised},
   };
   return layers;
 }

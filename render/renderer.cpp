@@ -41,15 +41,17 @@ nlohmann::json PassStats::to_json() const {
 
 Renderer::Renderer(gpu::Context& ctx, const scene::Scene& s, uint32_t frame, const scene::Scene* prev)
     : ctx_(ctx), scene_(s) {
-  timer_ = std::make_unique<gpu::Timer>(ctx, 16);
+  timer_ = std::make_unique<gpu::Timer>(ctx, 48);
   set_scene(s, frame, prev);
 }
 
 const gpu::ComputePipeline* Renderer::pipeline(const std::string& spv, uint32_t num_buffers,
-                                               uint32_t push_bytes) {
-  auto& p = pipelines_[spv];
+                                               uint32_t push_bytes, const std::vector<uint32_t>& spec) {
+  std::string key = spv;
+  for (uint32_t c : spec) key += fmt::format("#{}", c);
+  auto& p = pipelines_[key];
   if (!p) {
-    p = std::make_unique<gpu::ComputePipeline>(ctx_, spv, num_buffers, push_bytes);
+    p = std::make_unique<gpu::ComputePipeline>(ctx_, spv, num_buffers, push_bytes, spec);
     pipeline_ms_ += p->creation_ms();
   }
   return p.get();
@@ -89,6 +91,8 @@ void Renderer::set_scene(const scene::Scene& s, uint32_t frame, const scene::Sce
          fmt::format("{} x f32 per pixel", glsl::ACC_STRIDE));
   accum_buf_.fill_zero();
   samples_ = 0;
+  // The resolved layers keep the last frame's virtual point depth for the next frame's volume motion.
+  if (!out_buf_.valid() || out_buf_.size() != pixels * glsl::OUT_STRIDE * 4) has_frame_ = false;
   ensure(out_buf_, "resolved layers", "outputs", pixels * glsl::OUT_STRIDE * 4,
          fmt::format("{} x f32 per pixel", glsl::OUT_STRIDE));
   ensure(ldr_buf_, "preview", "outputs", pixels * 4, "RGBA8");
@@ -159,8 +163,53 @@ void Renderer::set_scene(const scene::Scene& s, uint32_t frame, const scene::Sce
   ensure(prev_gbuffer_buf_, "previous g-buffer", "previous-frame data", pixels * glsl::G_STRIDE * 4,
          fmt::format("{} x f32 per pixel", glsl::G_STRIDE));
 
+  const bool media = features_.hetero || features_.haze;
+  if (features_.guiding) {
+    glm::uvec2 grid = volume::guide_grid_size(s);
+    uint64_t bytes = uint64_t(grid.x) * grid.y * uint32_t(s.guiding.states) * 16;
+    if (!guide_buf_.valid() || guide_buf_.size() != bytes) {
+      const std::string format =
+          fmt::format("{}x{} vertices x {} states x vec4", grid.x, grid.y, s.guiding.states);
+      guide_buf_ = gpu::Buffer(ctx_, "guiding states", "guiding state", bytes, format);
+      guide_prev_buf_ = gpu::Buffer(ctx_, "guiding states (previous frame)", "guiding state", bytes, format);
+      guide_buf_.fill_zero();
+    }
+  } else {
+    guide_buf_ = gpu::Buffer();
+    guide_prev_buf_ = gpu::Buffer();
+  }
+
+  // How each VDB medium moved since the previous frame, for the virtual points inside it.
+  std::vector<guiding::glsl::MediumMotion> moved;
+  for (size_t i = 0; i < s.media.size() && i < p.media.size() && i < media_.media.size(); ++i) {
+    glm::dmat4 now = s.media[i].transform.matrix(), before = p.media[i].transform.matrix();
+    if (now == before) continue;
+    guiding::glsl::MediumMotion m{};
+    glm::dmat4 prev_to_now = now * glm::inverse(before), now_to_prev = before * glm::inverse(now);
+    m.prev_world_to_world = glm::mat4(prev_to_now);
+    glm::dvec3 lo(1e300), hi(-1e300);
+    const glm::dvec3 a(media_.media[i].world_min), b(media_.media[i].world_max);
+    for (int c = 0; c < 8; ++c) {
+      glm::dvec3 corner(c & 1 ? b.x : a.x, c & 2 ? b.y : a.y, c & 4 ? b.z : a.z);
+      glm::dvec3 q = glm::dvec3(now_to_prev * glm::dvec4(corner, 1));
+      lo = glm::min(lo, q);
+      hi = glm::max(hi, q);
+    }
+    m.prev_min = glm::vec4(glm::vec3(lo), 0);
+    m.prev_max = glm::vec4(glm::vec3(hi), 0);
+    moved.push_back(m);
+  }
+  moving_media_ = uint32_t(moved.size());
+  if (!moved.empty()) {
+    ensure(media_motion_buf_, "media motion", "scene data", moved.size() * sizeof(moved[0]), "MediumMotion");
+    media_motion_buf_.upload(moved);
+  } else {
+    media_motion_buf_ = gpu::Buffer();
+  }
+
   const uint32_t surface_buffers = features_.surfaces ? (features_.texture ? 5 : 3) : 0;
-  uint32_t num_buffers = 2 + (features_.lights() ? 1 : 0) + (features_.hetero ? 3 : 0) + surface_buffers;
+  uint32_t num_buffers = 2 + (features_.lights() ? 1 : 0) + (features_.hetero ? 3 : 0) + surface_buffers +
+                         (features_.guiding ? 1 : 0);
   std::string dir = spv_dir();
   trace_ = pipeline(fmt::format("{}/volume/trace.comp.{}.spv", dir, features_.mask()), num_buffers, 4);
   resolve_ = pipeline(fmt::format("{}/volume/resolve.comp.0.spv", dir), 3, 16);
@@ -178,16 +227,46 @@ void Renderer::set_scene(const scene::Scene& s, uint32_t frame, const scene::Sce
     } else {
       svgf_surface_->set_params(s.denoise.surface);
     }
-    tonemap_ = pipeline(fmt::format("{}/denoise/tonemap.comp.0.spv", dir), 3, 20);
   } else {
     svgf_surface_.reset();
   }
+  // The volume instance: the volume signal with albedo 1, the volume motion vectors.
+  if (media && s.denoise.volume.enabled) {
+    if (!svgf_volume_ || svgf_volume_->width() != uint32_t(s.render.width) ||
+        svgf_volume_->height() != uint32_t(s.render.height)) {
+      svgf_volume_.reset();
+      svgf_volume_ = std::make_unique<denoise::Svgf>(ctx_, "volume", s.denoise.volume, s.render.width,
+                                                     s.render.height, /*remodulate=*/false, dir);
+      pipeline_ms_ += svgf_volume_->pipeline_ms();
+    } else {
+      svgf_volume_->set_params(s.denoise.volume);
+    }
+  } else {
+    svgf_volume_.reset();
+  }
+  if (svgf_surface_ || svgf_volume_)
+    tonemap_ = pipeline(fmt::format("{}/denoise/tonemap.comp.0.spv", dir), 3, sizeof(TonemapPush),
+                        {svgf_surface_ ? 1u : 0u, svgf_volume_ ? 1u : 0u});
+  const bool virtual_points = svgf_volume_ && s.denoise.volume_motion == "virtual_points";
+  if (virtual_points || (features_.guiding && s.guiding.temporal)) {
+    if (!volume_motion_ || volume_motion_->width() != uint32_t(s.render.width) ||
+        volume_motion_->height() != uint32_t(s.render.height)) {
+      volume_motion_.reset();
+      volume_motion_ = std::make_unique<guiding::VolumeMotion>(ctx_, s.render.width, s.render.height, dir);
+      pipeline_ms_ += volume_motion_->pipeline_ms();
+    }
+  } else {
+    volume_motion_.reset();
+  }
+  guide_reproject_ =
+      features_.guiding ? pipeline(fmt::format("{}/guiding/guide_reproject.comp.0.spv", dir), 4, 0) : nullptr;
 }
 
-TonemapPush tonemap_push(const scene::RenderSettings& r, uint32_t pixels, uint32_t volume_stride,
-                         uint32_t volume_offset) {
+TonemapPush tonemap_push(const scene::RenderSettings& r, uint32_t pixels, glm::uvec2 surface_layout,
+                         glm::uvec2 volume_layout) {
   const uint32_t op = r.tonemap == "aces" ? 0u : (r.tonemap == "reinhard" ? 1u : 2u);
-  return {pixels, volume_stride, volume_offset, std::exp2(r.exposure), op};
+  return {pixels, surface_layout.x, surface_layout.y, volume_layout.x, volume_layout.y, std::exp2(r.exposure),
+          op};
 }
 
 Renderer::~Renderer() = default;
@@ -202,6 +281,48 @@ void Renderer::record_times() {
   for (auto& [name, ms] : timer_->read_ms()) passes_[name].ms.push_back(ms);
 }
 
+void Renderer::start_frame(VkCommandBuffer cmd) {
+  const auto& r = scene_.render;
+  uint32_t gx = (uint32_t(r.width) + 7) / 8, gy = (uint32_t(r.height) + 7) / 8;
+  // Keep the last frame's G-buffer, then write this one's.
+  gpu::copy_buffer(cmd, gbuffer_buf_, prev_gbuffer_buf_);
+  gpu::compute_barrier(cmd);
+  timer_->begin(cmd, "gbuffer");
+  std::vector<const gpu::Buffer*> gb = {&scene_buf_, &gbuffer_buf_};
+  append_surface_buffers(gb);
+  gbuffer_->dispatch(cmd, gb, nullptr, gx, gy);
+  timer_->end(cmd);
+  gpu::compute_barrier(cmd);
+  if (volume_motion_) {
+    // out_buf_ still holds the previous frame's resolve; without one, no point is projected.
+    if (!has_frame_) out_buf_.fill_zero(cmd);
+    guiding::VolumeMotionInputs in;
+    in.scene = &scene_buf_;
+    in.prev_depth = &out_buf_;
+    in.depth_stride = glsl::OUT_STRIDE;
+    in.depth_offset = glsl::OUT_VPDEPTH;
+    in.gbuffer = &gbuffer_buf_;
+    in.media = moving_media_ ? &media_motion_buf_ : nullptr;
+    in.media_count = moving_media_;
+    volume_motion_->run(cmd, timer_.get(), in);
+  }
+  if (features_.guiding) {
+    if (!scene_.guiding.temporal) {
+      guide_buf_.fill_zero(cmd);
+    } else if (has_frame_) {
+      // Each vertex takes the states of the previous frame's vertex its virtual point came from.
+      std::swap(guide_buf_, guide_prev_buf_);
+      timer_->begin(cmd, "guide_reproject");
+      const glm::uvec2 grid = volume::guide_grid_size(scene_);
+      const uint32_t states = grid.x * grid.y * uint32_t(scene_.guiding.states);
+      guide_reproject_->dispatch(cmd, {&scene_buf_, &volume_motion_->output(), &guide_prev_buf_, &guide_buf_},
+                                 nullptr, (states + 63) / 64);
+      timer_->end(cmd);
+    }
+    gpu::compute_barrier(cmd);
+  }
+}
+
 void Renderer::add_samples(int n, const std::function<void(int, int)>& progress) {
   const auto& r = scene_.render;
   uint32_t gx = (uint32_t(r.width) + 7) / 8, gy = (uint32_t(r.height) + 7) / 8;
@@ -209,16 +330,7 @@ void Renderer::add_samples(int n, const std::function<void(int, int)>& progress)
     uint32_t sample_index = uint32_t(samples_);
     ctx_.submit_and_wait([&](VkCommandBuffer cmd) {
       timer_->reset(cmd);
-      if (samples_ == 0) {
-        // A new frame: keep the last frame's G-buffer, then write this one's.
-        gpu::copy_buffer(cmd, gbuffer_buf_, prev_gbuffer_buf_);
-        gpu::compute_barrier(cmd);
-        timer_->begin(cmd, "gbuffer");
-        std::vector<const gpu::Buffer*> gb = {&scene_buf_, &gbuffer_buf_};
-        append_surface_buffers(gb);
-        gbuffer_->dispatch(cmd, gb, nullptr, gx, gy);
-        timer_->end(cmd);
-      }
+      if (samples_ == 0) start_frame(cmd);
       timer_->begin(cmd, "trace");
       std::vector<const gpu::Buffer*> b = {&scene_buf_, &accum_buf_};
       if (features_.lights()) b.push_back(&lights_buf_);
@@ -228,7 +340,10 @@ void Renderer::add_samples(int n, const std::function<void(int, int)>& progress)
         b.push_back(&majorant_buf_);
       }
       append_surface_buffers(b);
+      if (features_.guiding) b.push_back(&guide_buf_);
       trace_->dispatch(cmd, b, &sample_index, gx, gy);
+      // The next sample reads the states this one wrote.
+      if (features_.guiding) gpu::compute_barrier(cmd);
       timer_->end(cmd);
     });
     record_times();
@@ -240,36 +355,51 @@ void Renderer::add_samples(int n, const std::function<void(int, int)>& progress)
 Image Renderer::resolve() {
   const auto& r = scene_.render;
   uint32_t pixels = uint32_t(r.width) * uint32_t(r.height);
-  // The preview of the noisy means, or (below) of the denoised frame: denoised surface + volume signal.
-  const TonemapPush tp = tonemap_push(r, pixels, glsl::OUT_STRIDE, glsl::OUT_VOL);
   struct {
     uint32_t pixels, samples;
     float exposure_scale;
     uint32_t tonemap;
-  } push{pixels, uint32_t(samples_), tp.exposure_scale, tp.tonemap};
+  } push{pixels, uint32_t(samples_), std::exp2(r.exposure), tonemap_push(r, pixels).tonemap};
   ctx_.submit_and_wait([&](VkCommandBuffer cmd) {
     timer_->reset(cmd);
     timer_->begin(cmd, "resolve");
     resolve_->dispatch(cmd, {&accum_buf_, &out_buf_, &ldr_buf_}, &push, (pixels + 63) / 64);
     timer_->end(cmd);
+    if (!svgf_surface_ && !svgf_volume_) return;
+    gpu::compute_barrier(cmd);
+    denoise::SvgfInputs in;
+    in.colour = &out_buf_;
+    in.colour_stride = glsl::OUT_STRIDE;
+    in.gbuffer = &gbuffer_buf_;
+    in.prev_gbuffer = &prev_gbuffer_buf_;
+    in.motion = &gbuffer_buf_;
+    in.motion_stride = glsl::G_STRIDE;
+    in.motion_offset = glsl::G_MOTION;
     if (svgf_surface_) {
-      gpu::compute_barrier(cmd);
-      denoise::SvgfInputs in;
-      in.colour = &out_buf_;
-      in.colour_stride = glsl::OUT_STRIDE;
       in.colour_offset = glsl::OUT_DEMOD;
-      in.gbuffer = &gbuffer_buf_;
-      in.prev_gbuffer = &prev_gbuffer_buf_;
-      in.motion = &gbuffer_buf_;
-      in.motion_stride = glsl::G_STRIDE;
-      in.motion_offset = glsl::G_MOTION;
       svgf_surface_->run(cmd, timer_.get(), in);
-      timer_->begin(cmd, "tonemap");
-      tonemap_->dispatch(cmd, {&svgf_surface_->output(), &out_buf_, &ldr_buf_}, &tp, (pixels + 63) / 64);
-      timer_->end(cmd);
     }
+    if (svgf_volume_) {
+      in.colour_offset = glsl::OUT_VOL;
+      if (scene_.denoise.volume_motion == "virtual_points") {
+        in.motion = &volume_motion_->output();
+        in.motion_stride = 4;
+        in.motion_offset = 0;
+      }
+      svgf_volume_->run(cmd, timer_.get(), in);
+    }
+    // The preview composites the denoised signals (or the noisy one where an instance does not run).
+    const TonemapPush tp = tonemap_push(r, pixels, glm::uvec2(glsl::OUT_STRIDE, glsl::OUT_SURF),
+                                        glm::uvec2(glsl::OUT_STRIDE, glsl::OUT_VOL));
+    timer_->begin(cmd, "tonemap");
+    tonemap_->dispatch(cmd,
+                       {svgf_surface_ ? &svgf_surface_->output() : &out_buf_,
+                        svgf_volume_ ? &svgf_volume_->output() : &out_buf_, &ldr_buf_},
+                       &tp, (pixels + 63) / 64);
+    timer_->end(cmd);
   });
   record_times();
+  has_frame_ = true;
   Image img;
   img.width = r.width;
   img.height = r.height;
@@ -278,7 +408,17 @@ Image Renderer::resolve() {
   img.ldr = ldr_buf_.download_vector<uint32_t>();
   img.gbuffer = gbuffer_buf_.download_vector<float>();
   if (svgf_surface_) img.surface_denoised = svgf_surface_->download();
+  if (svgf_volume_) img.volume_denoised = svgf_volume_->download();
+  if (volume_motion_) img.volume_motion = volume_motion_->download();
   return img;
+}
+
+std::vector<glm::vec4> Renderer::guide_states() const {
+  return guide_buf_.valid() ? guide_buf_.download_vector<glm::vec4>() : std::vector<glm::vec4>{};
+}
+
+std::vector<glm::vec4> Renderer::volume_motion() const {
+  return volume_motion_ ? volume_motion_->download() : std::vector<glm::vec4>{};
 }
 
 std::vector<float> Renderer::accum() const {

@@ -12,6 +12,7 @@
 
 #include "denoise/svgf.hpp"
 #include "gpu/gpu.hpp"
+#include "guiding/volume_motion.hpp"
 #include "scene/scene.hpp"
 #include "surfaces/scene_geometry.hpp"
 #include "volume/device_scene.hpp"
@@ -30,6 +31,8 @@ struct Image {
   std::vector<float> gbuffer;  // G_STRIDE floats per pixel
   std::vector<uint32_t> ldr;   // RGBA8, row 0 at the top (the denoised frame when a denoiser ran)
   std::optional<denoise::SvgfResult> surface_denoised;  // when the surface instance ran
+  std::optional<denoise::SvgfResult> volume_denoised;   // when the volume instance ran
+  std::vector<glm::vec4> volume_motion;  // when computed: guiding::VolumeMotion::output() per pixel
   float at(int x, int y, uint32_t channel) const {
     return data[(size_t(y) * width + x) * glsl::OUT_STRIDE + channel];
   }
@@ -39,15 +42,16 @@ struct Image {
 };
 
 // Push constants of shaders/denoise/tonemap.comp: exposure 2^render.exposure and the tone curve (0 aces,
-// 1 reinhard, 2 clamp) of render.tonemap; the volume signal is `volume_stride` floats per pixel at
-// `volume_offset`.
+// 1 reinhard, 2 clamp) of render.tonemap. A signal given as floats is `stride` floats per pixel with its rgb
+// at `offset`; its specialization constant (SURFACE_HALF, VOLUME_HALF) says whether it is an SVGF output
+// instead, whose stride and offset are then unused.
 struct TonemapPush {
-  uint32_t pixels, volume_stride, volume_offset;
+  uint32_t pixels, surface_stride, surface_offset, volume_stride, volume_offset;
   float exposure_scale;
   uint32_t tonemap;
 };
-TonemapPush tonemap_push(const scene::RenderSettings& r, uint32_t pixels, uint32_t volume_stride,
-                         uint32_t volume_offset);
+TonemapPush tonemap_push(const scene::RenderSettings& r, uint32_t pixels, glm::uvec2 surface_layout = {0, 0},
+                         glm::uvec2 volume_layout = {0, 0});
 
 // Median of a sample (the middle pair's mean for even sizes); 0 for an empty one.
 double median(std::vector<double> v);
@@ -82,6 +86,11 @@ class Renderer {
   // What loading the scene changed or dropped (clamped g, dropped triangles, ...), one line each.
   std::vector<std::string> notes() const;
   const surfaces::SceneGeometry& geometry() const { return geometry_; }
+  // The distance-guiding states (K vec4 {W, N, m1, m2} per grid vertex, shaders/guiding/guide.glsl); empty
+  // without guiding.
+  std::vector<glm::vec4> guide_states() const;
+  // The volume motion vectors of the current frame (empty where not computed).
+  std::vector<glm::vec4> volume_motion() const;
   const std::map<std::string, PassStats>& pass_stats() const { return passes_; }
   double pipeline_ms() const { return pipeline_ms_; }
   nlohmann::json stats() const;
@@ -98,12 +107,19 @@ class Renderer {
   gpu::Buffer bvh_nodes_buf_, bvh_tris_buf_, instances_buf_;  // surfaces only
   gpu::Buffer triangle_uvs_buf_, texels_buf_;                 // albedo textures only
   gpu::Buffer gbuffer_buf_, prev_gbuffer_buf_;
+  gpu::Buffer guide_buf_, guide_prev_buf_;  // guiding only
+  gpu::Buffer media_motion_buf_;            // moving media only (guiding::glsl::MediumMotion each)
+  uint32_t moving_media_ = 0;
+  bool has_frame_ = false;  // a frame was resolved since the buffers were (re)made: history exists
   std::map<std::string, std::unique_ptr<gpu::ComputePipeline>> pipelines_;  // by SPIR-V path
   const gpu::ComputePipeline* trace_ = nullptr;
   const gpu::ComputePipeline* resolve_ = nullptr;
   const gpu::ComputePipeline* gbuffer_ = nullptr;
   const gpu::ComputePipeline* tonemap_ = nullptr;
-  std::unique_ptr<denoise::Svgf> svgf_surface_;  // scenes with surfaces, denoise.surface.enabled
+  const gpu::ComputePipeline* guide_reproject_ = nullptr;
+  std::unique_ptr<denoise::Svgf> svgf_surface_;           // scenes with surfaces, denoise.surface.enabled
+  std::unique_ptr<denoise::Svgf> svgf_volume_;            // scenes with media, denoise.volume.enabled
+  std::unique_ptr<guiding::VolumeMotion> volume_motion_;  // for the volume instance and guiding's reuse
   std::unique_ptr<gpu::Timer> timer_;
   std::map<std::string, PassStats> passes_;
   double pipeline_ms_ = 0;
@@ -112,7 +128,10 @@ class Renderer {
   void record_times();
   // The BVH, instance and texture buffers in the order trace.comp and gbuffer.comp bind them.
   void append_surface_buffers(std::vector<const gpu::Buffer*>& b) const;
-  const gpu::ComputePipeline* pipeline(const std::string& spv, uint32_t num_buffers, uint32_t push_bytes);
+  const gpu::ComputePipeline* pipeline(const std::string& spv, uint32_t num_buffers, uint32_t push_bytes,
+                                       const std::vector<uint32_t>& spec = {});
+  // Where this frame starts: the previous frame's virtual points projected forward, the guide carried over.
+  void start_frame(VkCommandBuffer cmd);
   // Reallocates `b` only when its size changes.
   void ensure(gpu::Buffer& b, const char* name, const char* category, uint64_t bytes,
               const std::string& format);

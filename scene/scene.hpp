@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "denoise/params.hpp"
+#include "guiding/params.hpp"
 #include "scene/params.hpp"
 
 namespace haze::scene {
@@ -156,6 +157,7 @@ struct Scene {
   Lights lights;
   RenderSettings render;
   denoise::DenoiseSettings denoise;
+  guiding::GuidingParams guiding;
   std::optional<Animation> animation;
   std::string path;      // the file it came from (for messages), "" if from memory
   std::string base_dir;  // folder used to resolve relative file paths
@@ -350,6 +352,7 @@ void reflect(V& v, Scene& s) {
   v.field("lights", s.lights, "light sources");
   v.field("render", s.render, "render settings");
   v.field("denoise", s.denoise, "the SVGF denoiser instances");
+  v.field("guiding", s.guiding, "distance guiding along camera rays (DESIGN.md section 3)");
   v.field("animation", s.animation, "keyframed tracks; frames of a VDB sequence come from media[].file");
 }
 

@@ -21,6 +21,10 @@ using glsl::ACC_T2;
 using nlohmann::json;
 
 // Camera one unit below a slab y in [0, 1], looking up; rays cross only the slab's top and bottom faces.
+bool guiding_on(const scene::Scene& s) {
+  return volume::features_of(s).guiding;
+}
+
 json slab_camera(int size = 12) {
   return {{"camera", {{"position", {0, -1, 0}}, {"target", {0, 1, 0}}, {"up", {0, 0, 1}}, {"fov_y", 40}}},
           {"render", {{"width", size}, {"height", size}, {"pixel_jitter", false}, {"max_depth", 1}}}};
@@ -130,7 +134,13 @@ double slab_single_scatter(glm::dvec3 d, double sigma, double albedo, double g, 
       0, s_max, 4000);
 }
 
-void check_sunlit_slab(bool hetero, double p_equiangular) {
+// Distance guiding with probability P (guiding off for P < 0): every P must converge to the same image.
+json guided(json j, double P) {
+  if (P >= 0) j["guiding"] = {{"enabled", true}, {"probability", P}, {"spacing", 4}};
+  return j;
+}
+
+void check_sunlit_slab(bool hetero, double p_equiangular, double guide_p = -1) {
   const double sigma = 0.8, albedo = 0.7, g = 0.4, E = 2.0;
   json j = slab_camera();
   if (hetero)
@@ -140,7 +150,8 @@ void check_sunlit_slab(bool hetero, double p_equiangular) {
   j["lights"] = {{"sun", {{"direction", {0, 1, 0}}, {"irradiance", E}, {"angular_diameter", 0}}}};
   j["render"]["equiangular_probability"] = p_equiangular;
   j["render"]["volume_samples"] = 2;
-  scene::Scene s = make_scene(j);
+  scene::Scene s = make_scene(guided(j, guide_p));
+  EXPECT_EQ(guiding_on(s), guide_p >= 0);
   render::Renderer r(context(), s);
   r.add_samples(256);
   std::function<double(double)> rho, F;
@@ -177,7 +188,7 @@ TEST(Estimator, SunlitVdbSlabSingleScattering) {
 
 // Airlight: an isotropic point light in unbounded homogeneous fog, single scattering. The reference is the
 // equi-angular change of variables of the 1D integral (smooth, Simpson).
-void check_airlight(double p_equiangular) {
+void check_airlight(double p_equiangular, double guide_p = -1) {
   const double sigma = 0.3, albedo = 0.8, g = 0.2, I = 5.0;
   const glm::dvec3 c(0.3, 0.2, 2.0), o(0, 0, 0);
   json j = {{"camera", {{"position", {0, 0, 0}}, {"target", {0, 0, 1}}, {"fov_y", 60}}},
@@ -189,7 +200,7 @@ void check_airlight(double p_equiangular) {
               {"pixel_jitter", false},
               {"max_depth", 1},
               {"equiangular_probability", p_equiangular}}}};
-  scene::Scene s = make_scene(j);
+  scene::Scene s = make_scene(guided(j, guide_p));
   render::Renderer r(context(), s);
   r.add_samples(256);
   auto dirs = camera_directions(s);
@@ -212,6 +223,58 @@ void check_airlight(double p_equiangular) {
   Estimate e = estimate(r, ACC_L, ACC_L2);
   double z = z_score(e, ref);
   EXPECT_LT(std::abs(z), kZ) << "z = " << z << " mean[0] " << e.mean[0] << " ref[0] " << ref[0];
+  std::cout << "z = " << z << "\n";
+  EXPECT_EQ(context().validation_messages(), 0u);
+}
+
+// Guided distance sampling (the guide learns while it samples, from the first sample on).
+class GuidedSlab : public ::testing::TestWithParam<double> {};
+TEST_P(GuidedSlab, HomogeneousSunlitSlabIsUnbiased) {
+  check_sunlit_slab(false, 0.5, GetParam());
+}
+TEST_P(GuidedSlab, VdbSunlitSlabIsUnbiased) {
+  check_sunlit_slab(true, 0.5, GetParam());
+}
+TEST_P(GuidedSlab, AirlightWithEquiAngularIsUnbiased) {
+  check_airlight(0.5, GetParam());
+}
+INSTANTIATE_TEST_SUITE_P(P, GuidedSlab, ::testing::Values(0.0, 0.5, 0.9));
+
+// A heterogeneous cloud with multiple scattering, a sun and a point light has no closed form: the guided
+// estimator must agree with the unguided one, each at a high sample count (two-sample z-test).
+TEST_P(GuidedSlab, VdbCloudMatchesUnguided) {
+  json j = {{"camera", {{"position", {0.3, 0.2, 3}}, {"target", {0, 0, 0}}, {"fov_y", 40}}},
+            {"media",
+             {{{"procedural",
+                {{"kind", "cloud"},
+                 {"voxel_size", 0.08},
+                 {"center", {0, 0, 0}},
+                 {"size", {2, 2, 2}},
+                 {"density", 2.5},
+                 {"seed", 3}}},
+               {"albedo", {0.9, 0.8, 0.7}},
+               {"g", 0.3}}}},
+            {"lights",
+             {{"sun", {{"direction", {0.3, 1, 0.2}}, {"irradiance", 3}, {"angular_diameter", 0}}},
+              {"points", {{{"position", {-0.5, 0.9, 0.4}}, {"intensity", 2}}}}}},
+            {"render", {{"width", 10}, {"height", 10}, {"pixel_jitter", false}, {"max_depth", 3}}}};
+  auto run = [&](double P) {
+    scene::Scene s = make_scene(guided(j, P));
+    render::Renderer r(context(), s);
+    r.add_samples(768);
+    return estimate(r, glsl::ACC_VOL, glsl::ACC_VOL2);
+  };
+  static const Estimate u = run(-1);  // shared by the three P
+  Estimate g = run(GetParam());
+  double diff = 0, var = 0;
+  for (size_t p = 0; p < u.mean.size(); ++p) {
+    diff += g.mean[p] - u.mean[p];
+    var += g.var_of_mean[p] + u.var_of_mean[p];
+  }
+  double z = diff / std::sqrt(var);
+  EXPECT_LT(std::abs(z), kZ) << "z = " << z;
+  // P = 0 draws no guide candidates and learns nothing: exactly the unguided samples.
+  if (GetParam() == 0) EXPECT_EQ(diff, 0.0);
   std::cout << "z = " << z << "\n";
   EXPECT_EQ(context().validation_messages(), 0u);
 }

@@ -184,6 +184,96 @@ TEST(TruncatedGaussian, IsNormalisedAndSamplesFollowThePdf) {
   EXPECT_TRUE(std::isfinite(truncated_gaussian_sample(empty, 0.5f)));
 }
 
+// The guide mixture exactly as trace.comp draws from it: a candidate picked by weight, then its truncated
+// Gaussian; the pdf is the weighted sum. Candidates inside, straddling and beyond t_s, empty ones, and one
+// whose mean lies outside [0, t_s] (weight 0).
+TEST(GuideMixture, SamplesFollowThePdf) {
+  const float t_s = 10.f;
+  const vec4 prm(0.5f, 0.005f, 0.1f, 4.f);
+  // States {W, N, m1 = W mu, m2 = W (mu^2 + sigma^2)} for known mu and sigma.
+  auto state = [](float W, float N, float mu, float sigma) {
+    return vec4(W, N, W * mu, W * (mu * mu + sigma * sigma));
+  };
+  struct Case {
+    std::vector<vec4> states;
+  };
+  const Case cases[] = {
+      {{state(1, 100, 3, 0.5f), state(2, 100, 7, 1), state(0.5f, 100, 9.8f, 2)}},
+      {{state(1, 1, 5, 0), vec4(0), state(3, 50, 0.2f, 0.1f)}},
+      {{state(4, 100, 12, 1), state(1, 1000, 6, 0.01f), state(1, 10, 1, 3)}},
+      {{state(1, 100, 2, 0.3f), state(1, 100, 2, 0.3f), state(1, 100, 8, 0.3f), state(2, 3, 5, 4),
+        state(1, 100, 0.1f, 0.05f), state(1, 100, 9.9f, 0.05f), state(1, 100, 5, 0.5f),
+        state(0.1f, 100, 5, 5)}},
+  };
+  for (size_t ci = 0; ci < std::size(cases); ++ci) {
+    GuideMixture m = guide_mixture_empty();
+    for (const vec4& st : cases[ci].states) guide_mixture_add(m, st, t_s, prm);
+    ASSERT_GT(m.total, 0.f);
+    double norm = simpson([&](double t) { return guide_mixture_pdf(m, float(t)); }, 0, t_s, 400000);
+    EXPECT_NEAR(norm, 1.0, 2e-3) << "case " << ci;
+    uint rng = rng_init(23u, uint(ci), 5u);
+    std::vector<double> ts;
+    for (int i = 0; i < 200000; ++i) {
+      uint c = guide_mixture_pick(m, rng_next(rng));
+      ASSERT_GT(m.w[c], 0.f);
+      float t = truncated_gaussian_sample(m.g[c], rng_next(rng));
+      ASSERT_GE(t, 0.f);
+      ASSERT_LE(t, t_s);
+      ASSERT_GT(guide_mixture_pdf(m, t), 0.f) << t;
+      ts.push_back(t);
+    }
+    int df = 0;
+    double chi2 = chi2_statistic(
+        ts, 0, t_s, 200, [&](double t) { return guide_mixture_pdf(m, float(t)); }, &df);
+    EXPECT_LT(chi2, chi2_critical(df)) << "case " << ci;
+  }
+  // Nothing usable: the guide cannot sample and says so with a zero pdf.
+  GuideMixture none = guide_mixture_empty();
+  guide_mixture_add(none, vec4(0), t_s, prm);
+  guide_mixture_add(none, state(1, 10, 20, 1), t_s, prm);
+  EXPECT_EQ(none.total, 0.f);
+  EXPECT_EQ(guide_mixture_pdf(none, 3.f), 0.f);
+}
+
+// Learning: the running means converge to the contribution-weighted moments of t, and a shift by delta
+// moves the mean by delta and keeps the variance.
+TEST(GuideState, LearnsWeightedMomentsAndShifts) {
+  vec4 s(0);
+  uint rng = rng_init(3u, 1u, 2u);
+  // Contributions L = 2 at t ~ U[4, 6] and L = 0 elsewhere on [0, 10]: the weighted mean is 5, the
+  // variance 1/3, and W tends to the mean contribution 2 * 0.2 = 0.4.
+  double sum_w = 0, sum_wt = 0, sum_wt2 = 0;
+  for (int i = 0; i < 20000; ++i) {
+    float t = 10 * rng_next(rng);
+    float L = t >= 4 && t <= 6 ? 2.f : 0.f;
+    s = guide_update(s, L, t, 1e9f, 0.f);  // alpha = 1/N: exact running means
+    sum_w += L;
+    sum_wt += L * t;
+    sum_wt2 += L * t * t;
+  }
+  EXPECT_EQ(s.y, 20000.f);
+  EXPECT_NEAR(s.x, sum_w / 20000, 1e-4);
+  EXPECT_NEAR(guide_mean(s), sum_wt / sum_w, 1e-3);
+  EXPECT_NEAR(guide_mean(s), 5.0, 0.05);
+  double var = s.w / s.x - guide_mean(s) * guide_mean(s);
+  EXPECT_NEAR(var, 1.0 / 3.0, 0.02);
+  // With many samples the prior has no say: sigma is the sample's.
+  EXPECT_NEAR(guide_sigma(s, 10.f, vec4(0.5f, 0.005f, 0.1f, 4.f)), std::sqrt(var), 1e-3);
+  // The count is capped, and alpha never falls below min_alpha.
+  vec4 c = guide_update(vec4(1, 1024, 5, 26), 0.f, 0.f, 1024.f, 0.01f);
+  EXPECT_EQ(c.y, 1024.f);
+  EXPECT_NEAR(c.x, 0.99f, 1e-6);
+  vec4 sh = guide_shift(s, -1.5f);
+  EXPECT_NEAR(guide_mean(sh), guide_mean(s) - 1.5, 1e-3);
+  EXPECT_NEAR(sh.w / sh.x - guide_mean(sh) * guide_mean(sh), var, 1e-3);
+  // A fresh state is pulled to the prior's width; a mean outside [0, t_s] weighs nothing.
+  vec4 one = guide_update(vec4(0), 3.f, 2.f, 1024.f, 0.01f);
+  EXPECT_EQ(one.y, 1.f);
+  EXPECT_NEAR(guide_sigma(one, 10.f, vec4(0.5f, 0.005f, 0.1f, 4.f)), std::sqrt(4.0 / 5.0), 1e-5);
+  EXPECT_EQ(guide_weight(one, 1.f), 0.f);
+  EXPECT_EQ(guide_weight(one, 10.f), 3.f);
+}
+
 TEST(Cone, UniformConeStaysInsideAndIsUniformInCosine) {
   vec3 axis = normalize(vec3(1.f, 2.f, -0.5f));
   float cos_max = std::cos(0.3f);

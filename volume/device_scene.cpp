@@ -27,7 +27,14 @@ std::string Features::describe() const {
   add(surfaces, "surfaces");
   add(area, "area");
   add(texture, "texture");
+  add(guiding, "guiding");
   return s.empty() ? "empty" : s;
+}
+
+glm::uvec2 guide_grid_size(const scene::Scene& s) {
+  // Vertex i sits at pixel coordinate i * spacing; one more column and row cover the far edge.
+  uint32_t S = uint32_t(std::max(s.guiding.spacing, 1));
+  return {uint32_t(s.render.width) / S + 2, uint32_t(s.render.height) / S + 2};
 }
 
 Features features_of(const scene::Scene& s) {
@@ -46,6 +53,8 @@ Features features_of(const scene::Scene& s) {
   });
   f.texture = std::any_of(s.surfaces.begin(), s.surfaces.end(),
                           [](const scene::Surface& m) { return !m.albedo_texture.empty(); });
+  // Guiding learns where light scatters towards the camera: it needs a medium and a light.
+  f.guiding = s.guiding.enabled && (f.hetero || f.haze) && f.lights();
   return f;
 }
 
@@ -247,6 +256,10 @@ glsl::GpuScene build_gpu_scene(const scene::Scene& s, const DeviceMedia& dm, siz
   g.maj_max = glm::vec4(dm.majorant.world_max, 0);
   g.settings = glm::vec4(s.render.equiangular_probability, s.render.rr_threshold,
                          s.render.pixel_jitter ? 1.f : 0.f, 0);
+  const auto& gp = s.guiding;
+  g.guide = glm::vec4(gp.probability, gp.min_width, gp.prior_width, gp.prior_count);
+  g.guide_grid = glm::uvec4(guide_grid_size(s), gp.states, gp.candidates);
+  g.guide_learn = glm::vec4(float(gp.spacing), gp.learn ? 1.f : 0.f, float(gp.max_count), gp.min_alpha);
   return g;
 }
 

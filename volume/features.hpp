@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstdint>
+#include <glm/glm.hpp>
 #include <string>
 
 #include "scene/scene.hpp"
@@ -21,11 +22,12 @@ struct Features {
   bool surfaces = false;  // triangle meshes: BVH, instances
   bool area = false;      // emissive surfaces (lights for NEE)
   bool texture = false;   // albedo textures: per-triangle uvs, texels
+  bool guiding = false;   // distance guiding (guiding.enabled, media and lights present)
 
   uint32_t mask() const {
     return uint32_t(hetero) | uint32_t(haze) << 1 | uint32_t(emission) << 2 | uint32_t(sun) << 3 |
            uint32_t(env) << 4 | uint32_t(local) << 5 | uint32_t(multi) << 6 | uint32_t(surfaces) << 7 |
-           uint32_t(area) << 8 | uint32_t(texture) << 9;
+           uint32_t(area) << 8 | uint32_t(texture) << 9 | uint32_t(guiding) << 10;
   }
   // The G-buffer pass's variant (shaders/surfaces/gbuffer.comp: SURFACES TEXTURE).
   uint32_t gbuffer_mask() const { return uint32_t(surfaces) | uint32_t(texture) << 1; }
@@ -34,5 +36,8 @@ struct Features {
 };
 
 Features features_of(const scene::Scene& s);
+
+// Vertices across and down the distance-guiding grid (GpuScene::guide_grid.xy).
+glm::uvec2 guide_grid_size(const scene::Scene& s);
 
 }  // namespace haze::volume

@@ -14,5 +14,6 @@ using uint = glm::uint;
 #include "shaders/common/packing.glsl"
 #include "shaders/common/rng.glsl"
 #include "shaders/common/sampling.glsl"
+#include "shaders/guiding/guide.glsl"
 #include "shaders/volume/gpu_scene.glsl"
 }  // namespace haze::glsl

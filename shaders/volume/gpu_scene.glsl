@@ -57,18 +57,25 @@ struct GpuScene {
   vec4 prev_cam_up;
   vec4 prev_cam_forward;
   uvec4 counts2;  // x: surface instances
+  // Distance guiding (guiding/params.hpp; read only by the GUIDING variant). Widths are relative to t_s.
+  vec4 guide;        // x: P, y: min width, z: prior width, w: prior count
+  uvec4 guide_grid;  // x, y: vertices across and down, z: K states per vertex, w: C candidates
+  vec4 guide_learn;  // x: vertex spacing in pixels, y: learn (0/1), z: max count N, w: min alpha
 };
 
 // Accumulation layout per pixel: sums, then sums of squares. SURF_DEMOD is the surface term divided by the
-// albedo of the first surface hit, per sample (the surface denoiser's input).
+// albedo of the first surface hit, per sample (the surface denoiser's input). The virtual point sums: VP_WT
+// and VP_W are sum(Y t) and sum(Y) over the distance samples (Y: luminance of each one's volume
+// contribution); VP_G and VP_GN sum the mean of the guide state each sample chose, and count them.
 const uint ACC_L = 0u, ACC_VOL = 3u, ACC_SURF = 6u, ACC_T = 9u, ACC_DEPTH = 10u;
 const uint ACC_L2 = 11u, ACC_VOL2 = 14u, ACC_SURF2 = 17u, ACC_T2 = 20u;
 const uint ACC_DEMOD = 21u, ACC_DEMOD2 = 24u;
-const uint ACC_STRIDE = 27u;
+const uint ACC_VP_WT = 27u, ACC_VP_W = 28u, ACC_VP_G = 29u, ACC_VP_GN = 30u;
+const uint ACC_STRIDE = 31u;
 
-// Resolved output per pixel.
+// Resolved output per pixel. VPDEPTH: the virtual point depth (0: none).
 const uint OUT_L = 0u, OUT_VOL = 3u, OUT_SURF = 6u, OUT_T = 9u, OUT_DEPTH = 10u, OUT_VAR = 11u;
-const uint OUT_DEMOD = 14u, OUT_DEMOD_M2 = 17u;
-const uint OUT_STRIDE = 20u;
+const uint OUT_DEMOD = 14u, OUT_DEMOD_M2 = 17u, OUT_VPDEPTH = 20u;
+const uint OUT_STRIDE = 21u;
 
 #endif

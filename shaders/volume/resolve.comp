@@ -1,6 +1,6 @@
 #version 460
-// Per-pixel means of the accumulated sums, the sample variance of the final radiance, and the
-// tonemapped 8-bit preview.
+// Per-pixel means of the accumulated sums, the sample variance of the final radiance, the virtual point
+// depth, and the tonemapped 8-bit preview.
 #extension GL_GOOGLE_include_directive : require
 layout(local_size_x = 64) in;
 
@@ -40,6 +40,14 @@ void main() {
     outp[o + OUT_DEMOD + c] = accum[a + ACC_DEMOD + c] / n;
     outp[o + OUT_DEMOD_M2 + c] = accum[a + ACC_DEMOD2 + c] / n;
   }
+
+  // Virtual point depth: where the volume contribution concentrates, else the guide's mean, else the depth.
+  float vp = accum[a + ACC_DEPTH] / n;
+  if (accum[a + ACC_VP_W] > 0.0f)
+    vp = accum[a + ACC_VP_WT] / accum[a + ACC_VP_W];
+  else if (accum[a + ACC_VP_GN] > 0.0f)
+    vp = accum[a + ACC_VP_G] / accum[a + ACC_VP_GN];
+  outp[o + OUT_VPDEPTH] = vp;
 
   ldr[p] = pack_srgb8(tonemap(mean * pc.exposure_scale, pc.tonemap));
 }

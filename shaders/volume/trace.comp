@@ -71,6 +71,20 @@ layout(std430, binding = BINDING_SURFACES + 4) readonly buffer Texels {
 };
 #endif
 #include "surfaces/material.glsl"
+#if HAZE_TEXTURE
+#define BINDING_GUIDE (BINDING_SURFACES + 5)
+#else
+#define BINDING_GUIDE (BINDING_SURFACES + 3)
+#endif
+#else
+#define BINDING_GUIDE BINDING_SURFACES
+#endif
+#if HAZE_GUIDING
+#include "guiding/guide.glsl"
+// K states per grid vertex, read and written by every sample (a Markov chain of states, not a histogram).
+layout(std430, binding = BINDING_GUIDE) buffer GuideStates {
+  vec4 guide_states[];
+};
 #endif
 
 layout(push_constant) uniform Push {
@@ -85,6 +99,17 @@ const int ST_SURFACE = 0;  // ratio tracking T(0, t_s) for the surface term
 const int ST_CAMERA = 1;   // ratio tracking T(0, t_j) to a sampled distance, with the medium at t_j
 const int ST_SHADOW = 2;   // ratio tracking towards a light
 const int ST_WALK = 3;     // delta tracking to the next scattering vertex
+
+#if HAZE_GUIDING
+// A random state slot at a grid vertex next to grid position g (stochastic bilinear choice of the vertex).
+uint guide_slot(vec2 g, inout uint rng) {
+  vec2 f = g - floor(g);
+  ivec2 v = ivec2(floor(g)) + ivec2(rng_next(rng) < f.x ? 1 : 0, rng_next(rng) < f.y ? 1 : 0);
+  v = clamp(v, ivec2(0), ivec2(scene.guide_grid.xy) - 1);
+  uint K = scene.guide_grid.z;
+  return (uint(v.y) * scene.guide_grid.x + uint(v.x)) * K + min(uint(rng_next(rng) * float(K)), K - 1u);
+}
+#endif
 
 // Offset of ray origins off a surface, relative to the scene's scale at that point.
 float surface_epsilon(vec3 x) {
@@ -118,7 +143,7 @@ void main() {
   vec3 albedo0 = vec3(1.0f);  // albedo of the camera's surface hit, for demodulation
   float T_surf = 1.0f;
 
-  // Distance sampling on the camera ray: q(t) = p_base q_base(t) + p_ea q_ea(t).
+  // Distance sampling on the camera ray: q(t) = (1 - P) [p_base q_base(t) + p_ea q_ea(t)] + P q_guide(t).
   float tau_total = maj_walk(cam_o, cam_d, 0.0f, t_s, T_INF).tau;
   float p_base = tau_total > 0.0f ? 1.0f : 0.0f;
   float p_ea = 0.0f;
@@ -129,6 +154,19 @@ void main() {
     p_base = 1.0f - p_ea;
   }
 #endif
+#if HAZE_GUIDING
+  // The guide spreads its Gaussians over [0, t_g]: the ray up to t_s, but no further than a majorant optical
+  // depth of GUIDE_MAX_TAU (light from beyond is negligible; q_base still covers it).
+  float t_g = tau_total > GUIDE_MAX_TAU ? maj_walk(cam_o, cam_d, 0.0f, t_s, GUIDE_MAX_TAU).t : t_s;
+  float P_guide = t_g > 0.0f && t_g < 1e18f ? scene.guide.x : 0.0f;
+  vec2 guide_pos = (vec2(pix) + jitter) / scene.guide_learn.x;
+  vec4 guide_chosen = vec4(0.0f);  // the state the current sample learns into
+  float guide_mean_w = 0.0f;       // mean candidate weight, the bar for writing a state back
+#endif
+  float t_j = 0.0f;  // distance of the current volume sample
+  vec3 L_vol_start = vec3(0.0f);
+  // Virtual point sums (ACC_VP_*).
+  float vp_wt = 0.0f, vp_w = 0.0f, vp_g = 0.0f, vp_gn = 0.0f;
 
   // Path state.
   int state = ST_SURFACE;
@@ -301,14 +339,61 @@ void main() {
 
     if (next_sample) {
       to_surface = false;
+      if (j > 0u) {
+        // Volume sample j is complete: its luminance contribution weights its distance.
+        float Y = luminance(L_vol - L_vol_start);
+        if (!(Y >= 0.0f && Y < 1e30f)) Y = 0.0f;
+        vp_wt += Y * t_j;
+        vp_w += Y;
+#if HAZE_GUIDING
+        if (scene.guide_learn.y > 0.5f && P_guide > 0.0f) {
+          // The sample's own estimate f(t)/q(t) of the ray integral (L_vol holds it divided by N).
+          float L = Y * float(N);
+          vec4 s_new = guide_update(guide_chosen, L, t_j, scene.guide_learn.z, scene.guide_learn.w);
+          float p_write = guide_mean_w > 0.0f ? min(1.0f, L / guide_mean_w) : (L > 0.0f ? 1.0f : 0.0f);
+          if (rng_next(rng) < p_write) guide_states[guide_slot(guide_pos, rng)] = s_new;
+        }
+#endif
+      }
       if (j >= N || (p_base + p_ea) == 0.0f) break;
       j += 1u;
+      L_vol_start = L_vol;
       // Draw t_j from the mixture and evaluate q(t_j).
       float t;
       MajWalk mw;
       float u_pick = rng_next(rng);
       float u_t = rng_next(rng);
-      if (u_pick < p_base) {
+      float P = 0.0f;
+#if HAZE_GUIDING
+      GuideMixture gm = guide_mixture_empty();
+      uint slots[GUIDE_MAX_CANDIDATES];
+      if (P_guide > 0.0f) {
+        uint C = min(scene.guide_grid.w, GUIDE_MAX_CANDIDATES);
+        for (uint c = 0u; c < C; ++c) {
+          slots[c] = guide_slot(guide_pos, rng);
+          guide_mixture_add(gm, guide_states[slots[c]], t_g, scene.guide);
+        }
+        // Learning continues from a candidate chosen by weight (any one while none is usable).
+        uint chosen = gm.total > 0.0f ? guide_mixture_pick(gm, rng_next(rng))
+                                      : min(uint(rng_next(rng) * float(C)), C - 1u);
+        guide_chosen = guide_states[slots[chosen]];
+        guide_mean_w = gm.total / float(C);
+        if (gm.total > 0.0f) {
+          P = P_guide;
+          vp_g += guide_mean(guide_chosen);
+          vp_gn += 1.0f;
+        }
+        if (u_pick < P) {
+          t = truncated_gaussian_sample(gm.g[chosen], u_t);
+          u_pick = 2.0f;  // neither base nor equi-angular below
+        } else {
+          u_pick = (u_pick - P) / (1.0f - P);
+        }
+      }
+#endif
+      if (u_pick > 1.5f) {
+        mw = maj_walk(cam_o, cam_d, 0.0f, t, T_INF);
+      } else if (u_pick < p_base) {
         mw = maj_walk(cam_o, cam_d, 0.0f, t_s, truncated_exp_sample_tau(tau_total, u_t));
         t = mw.t;
       } else {
@@ -327,11 +412,15 @@ void main() {
         q += p_ea / float(K) *
              equi_angular_pdf(equi_angular_setup(cam_o, cam_d, lights[k].position.xyz, 0.0f, t_s), t);
 #endif
+#if HAZE_GUIDING
+      q = (1.0f - P) * q + P * guide_mixture_pdf(gm, t);
+#endif
       if (!(q > 0.0f)) {
         // A sample the mixture cannot produce again contributes nothing.
         q = T_INF;
       }
       q_j = q;
+      t_j = t;
       x = cam_o + cam_d * t;
       d = cam_d;
       q_o = cam_o;
@@ -367,4 +456,8 @@ void main() {
   accum[base + ACC_T] += T_surf;
   accum[base + ACC_T2] += T_surf * T_surf;
   accum[base + ACC_DEPTH] += t_s < T_INF * 0.5f ? t_s : 0.0f;
+  accum[base + ACC_VP_WT] += vp_wt;
+  accum[base + ACC_VP_W] += vp_w;
+  accum[base + ACC_VP_G] += vp_g;
+  accum[base + ACC_VP_GN] += vp_gn;
 }

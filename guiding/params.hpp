@@ -1,0 +1,47 @@
+// Parameters of distance guiding (DESIGN.md section 3), declared once: the scene's JSON
+// (`guiding.probability`),
+// --set, the docs and stats.json all come from reflect() below.
+#pragma once
+
+#include "scene/params.hpp"
+
+namespace haze::guiding {
+
+struct GuidingParams {
+  bool enabled = false;
+  float probability = 0.5f;  // P in q(t) = (1 - P) q_base + P q_guide
+  int spacing = 25;          // pixels between grid vertices
+  int states = 10;           // K states per vertex
+  int candidates = 3;        // C candidates per distance sample
+  float min_width = 0.005f;  // floor of the guide's sigma, relative to the ray's [0, t_s]
+  float prior_width = 0.1f;  // sigma the prior pulls towards while a state has few samples, relative
+  float prior_count = 4.f;   // samples' worth of weight of that prior
+  int max_count = 1024;      // N cap: alpha = max(1/N, min_alpha)
+  float min_alpha = 0.01f;
+  bool learn = true;     // update the states (off: sample from them as they are)
+  bool temporal = true;  // carry the states to the next frame through the volume motion
+};
+
+// Compile-time bound of the candidate loop in the shader (guide.glsl GUIDE_MAX_CANDIDATES).
+inline constexpr int kMaxGuideCandidates = 8;
+
+template <class V>
+void reflect(V& v, GuidingParams& p) {
+  using scene::Range;
+  v.field("enabled", p.enabled,
+          "learn and sample distances along camera rays (only where the scene has media and lights)");
+  v.field("probability", p.probability, Range{0, 0.99},
+          "P: share of distance samples drawn from the guide (the rest from transmittance)");
+  v.field("spacing", p.spacing, Range{1, 4096}, "pixels between the guide's grid vertices");
+  v.field("states", p.states, Range{1, 64}, "K: states per grid vertex");
+  v.field("candidates", p.candidates, Range{1, kMaxGuideCandidates}, "C: candidate states per sample");
+  v.field("min_width", p.min_width, Range{1e-6, 1}, "smallest sigma, relative to the ray segment");
+  v.field("prior_width", p.prior_width, Range{1e-6, 10}, "sigma of the prior, relative to the ray segment");
+  v.field("prior_count", p.prior_count, Range::at_least(0), "weight of the prior in samples");
+  v.field("max_count", p.max_count, Range{1, 1 << 20}, "cap of a state's sample count N");
+  v.field("min_alpha", p.min_alpha, Range{0, 1}, "alpha = max(1/N, min_alpha) in the running means");
+  v.field("learn", p.learn, "update the states from each sample's contribution");
+  v.field("temporal", p.temporal, "carry the states to the next frame through the volume motion vectors");
+}
+
+}  // namespace haze::guiding

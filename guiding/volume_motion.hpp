@@ -1,0 +1,61 @@
+// Volume motion vectors (DESIGN.md section 3, virtual points): the previous frame's virtual points projected
+// forward into the current camera. Per pixel: the motion of the nearest point that landed there and the
+// change of its distance along the ray (the guiding moments shift by it); pixels that receive no point keep
+// the G-buffer's surface motion.
+#pragma once
+
+#include <cstdint>
+#include <glm/glm.hpp>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "gpu/gpu.hpp"
+
+namespace haze::guiding {
+
+// shaders/guiding/volume_motion_layout.glsl compiled as C++.
+namespace glsl {
+using namespace glm;
+#include "shaders/guiding/volume_motion_layout.glsl"
+static_assert(sizeof(MediumMotion) == 6 * 16);
+}  // namespace glsl
+
+struct VolumeMotionInputs {
+  const gpu::Buffer* scene = nullptr;  // GpuScene: cam_* this frame's camera, prev_cam_* the previous one's
+  // The previous frame's virtual point depth: distance along the ray through the pixel centre, 0 (or not
+  // finite) where there is none; `depth_stride` floats per pixel, the depth at `depth_offset`.
+  const gpu::Buffer* prev_depth = nullptr;
+  uint32_t depth_stride = 1, depth_offset = 0;
+  const gpu::Buffer* gbuffer = nullptr;  // this frame's (G_MOTION is the fallback)
+  // glsl::MediumMotion per medium, `media_count` of them; nullptr (with count 0): static media.
+  const gpu::Buffer* media = nullptr;
+  uint32_t media_count = 0;
+};
+
+class VolumeMotion {
+ public:
+  // Needs 64-bit buffer atomics (throws gpu::Error without them). Both frames are width x height; the
+  // GpuScene's size is not read.
+  VolumeMotion(gpu::Context& ctx, uint32_t width, uint32_t height, const std::string& spv_dir);
+  ~VolumeMotion();
+
+  // Records the passes (timer scope "volume_motion" when a timer is given); ends with a compute barrier.
+  void run(VkCommandBuffer cmd, gpu::Timer* timer, const VolumeMotionInputs& in);
+
+  // vec4 per pixel: xy previous pixel position - current one, z distance of the point from this frame's
+  // camera minus d_prev, w 1 where a point landed (else xy the surface motion, z 0, w 0).
+  const gpu::Buffer& output() const { return output_; }
+  std::vector<glm::vec4> download() const { return output_.download_vector<glm::vec4>(); }
+  uint32_t width() const { return width_; }
+  uint32_t height() const { return height_; }
+  double pipeline_ms() const;
+
+ private:
+  uint32_t width_, height_;
+  gpu::Buffer keys_;    // per pixel: (distance bits << 32 | source pixel) of the nearest point, atomicMin
+  gpu::Buffer output_;  // vec4 per pixel
+  std::unique_ptr<gpu::ComputePipeline> splat_, resolve_;
+};
+
+}  // namespace haze::guiding

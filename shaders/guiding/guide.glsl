@@ -1,0 +1,102 @@
+// Distance-guiding states and the Gaussian mixture they define (DESIGN.md section 3, after Alber, Hanika
+// and Dachsbacher 2025). Pure functions: the trace pass, the temporal reuse pass and the CPU tests share
+// them.
+//
+// A state is a vec4 {W, N, m1, m2}: running means of a sample's contribution L, of L t and of L t^2 over the
+// samples it has seen (N of them, capped). m1 / W is then the contribution-weighted mean distance along the
+// ray, and the state stands for a Gaussian there.
+#ifndef HAZE_GUIDE_GLSL
+#define HAZE_GUIDE_GLSL
+
+#include "common/compat.glsl"
+#include "common/sampling.glsl"
+
+const uint GUIDE_MAX_CANDIDATES = 8u;  // guiding/params.hpp kMaxGuideCandidates
+// Majorant optical depth beyond which a camera ray is not guided (transmittance below 1e-13).
+const float GUIDE_MAX_TAU = 30.0f;
+
+HAZE_INLINE float guide_mean(vec4 s) {
+  return s.x > 0.0f ? s.z / s.x : 0.0f;
+}
+
+// prm = GpuScene::guide (x P, y min width, z prior width, w prior count; widths relative to t_s). The
+// sample variance is pulled towards the prior's width while N is small, and never falls below min width.
+HAZE_INLINE float guide_sigma(vec4 s, float t_s, vec4 prm) {
+  float mu = guide_mean(s);
+  float var = s.x > 0.0f ? max(s.w / s.x - mu * mu, 0.0f) : 0.0f;
+  float prior = prm.z * t_s;
+  var = (s.y * var + prm.w * prior * prior) / max(s.y + prm.w, 1e-6f);
+  return max(sqrt(var), prm.y * t_s);
+}
+
+// A candidate's weight: its W, or 0 if it is empty, not finite, or its mean lies outside [0, t_s].
+HAZE_INLINE float guide_weight(vec4 s, float t_s) {
+  float mu = guide_mean(s);
+  bool usable = s.x > 0.0f && s.x < 1e30f && mu >= 0.0f && mu <= t_s && s.w >= 0.0f && s.w < 1e30f;
+  return usable ? s.x : 0.0f;
+}
+
+// Learning from one sample with contribution L at distance t.
+HAZE_INLINE vec4 guide_update(vec4 s, float L, float t, float max_count, float min_alpha) {
+  float n = min(s.y + 1.0f, max_count);
+  float a = max(1.0f / n, min_alpha);
+  return vec4(mix(s.x, L, a), n, mix(s.z, L * t, a), mix(s.w, L * t * t, a));
+}
+
+// The same state seen from a camera whose distance to the guided region changed by delta along the ray:
+// every t becomes t + delta, so m1 += delta W and m2 += delta (2 m1 + delta W).
+HAZE_INLINE vec4 guide_shift(vec4 s, float delta) {
+  return vec4(s.x, s.y, s.z + delta * s.x, s.w + delta * (2.0f * s.z + delta * s.x));
+}
+
+// q_guide for one distance sample: the candidates' Gaussians truncated to [0, t_s], weighted by W.
+struct GuideMixture {
+  TruncatedGaussian g[GUIDE_MAX_CANDIDATES];
+  float w[GUIDE_MAX_CANDIDATES];
+  uint count;
+  float total;  // sum of w; 0: no usable candidate, the guide cannot sample
+};
+
+HAZE_INLINE GuideMixture guide_mixture_empty() {
+  GuideMixture m;
+  for (uint c = 0u; c < GUIDE_MAX_CANDIDATES; ++c) {
+    m.g[c] = truncated_gaussian(0.0f, 0.0f, 0.0f, 0.0f);
+    m.w[c] = 0.0f;
+  }
+  m.count = 0u;
+  m.total = 0.0f;
+  return m;
+}
+
+HAZE_INLINE void guide_mixture_add(INOUT(GuideMixture) m, vec4 s, float t_s, vec4 prm) {
+  if (m.count >= GUIDE_MAX_CANDIDATES) return;
+  float w = guide_weight(s, t_s);
+  m.w[m.count] = w;
+  m.g[m.count] = truncated_gaussian(guide_mean(s), guide_sigma(s, t_s, prm), 0.0f, t_s);
+  m.total += w;
+  m.count += 1u;
+}
+
+// The candidate chosen with probability w / total (u in [0, 1)); the last usable one on rounding.
+HAZE_INLINE uint guide_mixture_pick(GuideMixture m, float u) {
+  float x = u * m.total;
+  uint pick = 0u;
+  for (uint c = 0u; c < m.count; ++c) {
+    if (m.w[c] > 0.0f) {
+      pick = c;
+      if (x < m.w[c]) break;
+      x -= m.w[c];
+    }
+  }
+  return pick;
+}
+
+HAZE_INLINE float guide_mixture_pdf(GuideMixture m, float t) {
+  if (!(m.total > 0.0f)) return 0.0f;
+  float p = 0.0f;
+  for (uint c = 0u; c < m.count; ++c)
+    if (m.w[c] > 0.0f) p += m.w[c] * truncated_gaussian_pdf(m.g[c], t);
+  return p / m.total;
+}
+
+#endif

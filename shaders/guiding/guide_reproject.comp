@@ -1,0 +1,45 @@
+#version 460
+// Temporal reuse of the guiding states (DESIGN.md section 3): each vertex of this frame's grid takes the K
+// states of the previous frame's vertex nearest to where its pixel's virtual point was (the volume motion),
+// with the moments shifted by the point's change of distance along the ray. Vertices whose point came from
+// outside the previous grid start empty.
+#extension GL_GOOGLE_include_directive : require
+layout(local_size_x = 64) in;
+
+#include "common/compat.glsl"
+#include "guiding/guide.glsl"
+#include "volume/gpu_scene.glsl"
+
+layout(std430, binding = 0) readonly buffer SceneBuffer {
+  GpuScene scene;
+};
+layout(std430, binding = 1) readonly buffer Motion {
+  vec4 motion[];  // guiding::VolumeMotion output: xy previous - current position, z change of distance
+};
+layout(std430, binding = 2) readonly buffer PrevStates {
+  vec4 prev_states[];
+};
+layout(std430, binding = 3) writeonly buffer States {
+  vec4 states[];
+};
+
+void main() {
+  uvec4 G = scene.guide_grid;
+  uint i = gl_GlobalInvocationID.x;
+  if (i >= G.x * G.y * G.z) return;
+  uint v = i / G.z, k = i % G.z;
+  float S = scene.guide_learn.x;
+  // Vertex (x, y) sits at pixel coordinate (x, y) * S; the pixel there (clamped to the image) moved by m.
+  vec2 at = vec2(v % G.x, v / G.x) * S;
+  ivec2 pix = clamp(ivec2(floor(at)), ivec2(0), ivec2(scene.size.xy) - 1);
+  vec4 m = motion[uint(pix.y) * scene.size.x + uint(pix.x)];
+  vec2 from = round((at + m.xy) / S);
+  vec4 s = vec4(0.0f);
+  if (all(greaterThanEqual(from, vec2(0.0f))) && all(lessThan(from, vec2(G.xy)))) {
+    uint u = uint(from.y) * G.x + uint(from.x);
+    s = guide_shift(prev_states[u * G.z + k], m.z);
+  }
+  // A state made unusable by the shift (or never finite) is dropped rather than carried.
+  if (!(s.x >= 0.0f && s.x < 1e30f && abs(s.z) < 1e30f && s.w >= 0.0f && s.w < 1e30f)) s = vec4(0.0f);
+  states[i] = s;
+}

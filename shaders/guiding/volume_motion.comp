@@ -1,0 +1,96 @@
+#version 460
+// Volume motion vectors (DESIGN.md section 3): the previous frame's virtual points projected forward into
+// this frame's camera. Two pipelines of this source (specialization constant RESOLVE):
+//  splat (0), one thread per previous pixel p: its point X = previous camera + d(p) * ray(p), moved by its
+//    medium, lands on pixel q of the current camera; atomicMin of (distance bits << 32 | p) into keys[q].
+//    Positive floats order as their bits, so the nearest point wins whatever the thread order, and equal
+//    distances go to the lower source index: the result is deterministic.
+//  resolve (1), one thread per current pixel: decodes its winner and recomputes that point (a gather, so
+//    every pixel is written once), or falls back to the G-buffer's surface motion.
+#extension GL_GOOGLE_include_directive : require
+#extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
+#extension GL_EXT_shader_atomic_int64 : require
+layout(local_size_x = 8, local_size_y = 8) in;
+
+#include "common/camera.glsl"
+#include "common/gbuffer.glsl"
+#include "guiding/volume_motion_layout.glsl"
+#include "volume/gpu_scene.glsl"
+
+layout(constant_id = 0) const uint RESOLVE = 0u;
+
+layout(std430, binding = 0) readonly buffer SceneBuffer {
+  GpuScene scene;  // cam_*: this frame's camera, prev_cam_*: the previous frame's
+};
+layout(std430, binding = 1) readonly buffer PrevDepth {
+  float prev_depth[];  // the previous frame's virtual point distance along the pixel-centre ray; 0: none
+};
+layout(std430, binding = 2) readonly buffer GBuffer {
+  float gbuf[];
+};
+layout(std430, binding = 3) readonly buffer Media {
+  MediumMotion media[];  // not read when pc.media_count is 0 (any buffer may be bound then)
+};
+layout(std430, binding = 4) buffer Keys {
+  uint64_t keys[];  // per current pixel; all ones: no point landed
+};
+layout(std430, binding = 5) writeonly buffer Motion {
+  vec4 motion[];
+};
+
+layout(push_constant) uniform Push {
+  uvec2 size;                       // width, height (of both frames)
+  uint depth_stride, depth_offset;  // prev_depth: floats per pixel and the depth's offset
+  uint media_count;
+}
+pc;
+
+const uint64_t KEY_NONE = 0xffffffffffffffffUL;
+
+// The virtual point of previous pixel p seen from the current camera: v = X - camera position, q its
+// continuous image position. False when p has no point or it falls behind the camera or off screen.
+bool project_point(uint p, out float d, out vec3 v, out vec2 q) {
+  d = prev_depth[p * pc.depth_stride + pc.depth_offset];
+  // Bit test rather than comparisons: zero, negative, infinite and NaN depths all mean "no point", also
+  // where the compiler assumes finite maths.
+  uint bits = floatBitsToUint(d);
+  if (bits == 0u || bits >= 0x7f800000u) return false;
+  vec2 size = vec2(pc.size);
+  vec2 centre = vec2(p % pc.size.x, p / pc.size.x) + 0.5f;
+  vec3 X = scene.prev_cam_position.xyz + d * camera_direction(scene.prev_cam_right.xyz, scene.prev_cam_up.xyz,
+                                                              scene.prev_cam_forward.xyz, centre, size);
+  for (uint i = 0u; i < pc.media_count; ++i) {
+    if (all(greaterThanEqual(X, media[i].prev_min.xyz)) && all(lessThanEqual(X, media[i].prev_max.xyz))) {
+      X = (media[i].prev_world_to_world * vec4(X, 1.0f)).xyz;
+      break;
+    }
+  }
+  v = X - scene.cam_position.xyz;
+  if (!(dot(v, scene.cam_forward.xyz) > 0.0f)) return false;
+  q = camera_project_direction(scene.cam_right.xyz, scene.cam_up.xyz, scene.cam_forward.xyz, v, size);
+  return all(greaterThanEqual(q, vec2(0.0f))) && all(lessThan(q, size));
+}
+
+void main() {
+  uvec2 pix = gl_GlobalInvocationID.xy;
+  if (pix.x >= pc.size.x || pix.y >= pc.size.y) return;
+  uint p = pix.y * pc.size.x + pix.x;
+  float d;
+  vec3 v;
+  vec2 q;
+  if (RESOLVE == 0u) {
+    if (!project_point(p, d, v, q)) return;
+    uvec2 t = uvec2(q);  // floor: q >= 0
+    atomicMin(keys[t.y * pc.size.x + t.x], packUint2x32(uvec2(p, floatBitsToUint(length(v)))));
+    return;
+  }
+  uint64_t key = keys[p];
+  uint src = uint(key & 0xffffffffUL);
+  if (key != KEY_NONE && project_point(src, d, v, q)) {
+    vec2 centre = vec2(src % pc.size.x, src / pc.size.x) + 0.5f;
+    motion[p] = vec4(centre - q, length(v) - d, 1.0f);
+  } else {
+    uint g = p * G_STRIDE + G_MOTION;
+    motion[p] = vec4(gbuf[g], gbuf[g + 1u], 0.0f, 0.0f);
+  }
+}

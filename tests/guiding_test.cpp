@@ -1,0 +1,176 @@
+// Distance guiding, virtual points and the volume denoiser in the renderer (lavapipe, real shaders, the
+// validation layer on). A light shaft with a known position: the sun straight above shines through a slit
+// z in [5.5, 6.5] between two boxes at y = 3, into haze; the camera at y = 1 looks along +z, so every camera
+// ray crosses the shaft where it meets the plane z = 6 (within half a unit).
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <iostream>
+
+#include "test_util.hpp"
+#include "volume/glsl.hpp"
+
+namespace haze::test {
+namespace {
+
+using nlohmann::json;
+
+json shaft_scene(bool guiding, double P = 0.5) {
+  json box = {{"kind", "box"}, {"size", {40, 0.1, 10}}};
+  json j = {{"camera", {{"position", {0, 1, 0}}, {"target", {0, 1, 1}}, {"fov_y", 30}}},
+            {"haze",
+             {{"sigma_t", 0.1},
+              {"albedo", {0.9, 0.9, 0.9}},
+              {"bounded", true},
+              {"bounds_min", {-20, -1, 0}},
+              {"bounds_max", {20, 3, 12}}}},
+            {"surfaces",
+             {{{"mesh", box}, {"transform", {{"translate", {0, 3.05, 0.5}}}}},
+              {{"mesh", box}, {"transform", {{"translate", {0, 3.05, 11.5}}}}}}},
+            {"lights", {{"sun", {{"direction", {0, 1, 0}}, {"irradiance", 5}, {"angular_diameter", 0}}}}},
+            {"render", {{"width", 32}, {"height", 24}, {"max_depth", 1}, {"pixel_jitter", false}}}};
+  if (guiding) j["guiding"] = {{"enabled", true}, {"probability", P}, {"spacing", 8}};
+  return j;
+}
+
+// W-weighted mean of the guide states' means at grid vertex (x, y).
+double vertex_mean(const std::vector<glm::vec4>& st, glm::uvec2 grid, uint32_t K, uint32_t x, uint32_t y) {
+  double w = 0, wm = 0;
+  for (uint32_t k = 0; k < K; ++k) {
+    glm::vec4 s = st[(size_t(y) * grid.x + x) * K + k];
+    float g = glsl::guide_weight(s, 12.f);
+    w += g;
+    wm += g * glsl::guide_mean(s);
+  }
+  return w > 0 ? wm / w : -1;
+}
+
+// The guide starts empty and learns the shaft: after a few frames the states at the image's centre vertex
+// put their weighted mean within 0.4 of the shaft's centre (t = 6 there).
+TEST(Guiding, StatesLearnTheShaftPosition) {
+  scene::Scene s = make_scene(shaft_scene(true));
+  render::Renderer r(context(), s);
+  ASSERT_TRUE(r.features().guiding);
+  glm::uvec2 grid = volume::guide_grid_size(s);
+  EXPECT_EQ(grid, glm::uvec2(32 / 8 + 2, 24 / 8 + 2));
+  std::vector<double> error;
+  for (int frame = 0; frame < 4; ++frame) {
+    if (frame > 0) r.set_scene(s, uint32_t(frame), &s);
+    r.add_samples(4);
+    r.resolve();
+    double mu = vertex_mean(r.guide_states(), grid, 10, 2, 1);  // pixel (16, 8): t = 6 / d.z
+    error.push_back(std::abs(mu - 6.0));
+    std::cout << "frame " << frame << ": centre vertex mean " << mu << "\n";
+  }
+  EXPECT_LT(error.back(), 0.4);
+  EXPECT_EQ(context().validation_messages(), 0u);
+}
+
+// The guided estimator's variance on the shaft falls well below transmittance sampling's at equal samples,
+// and both agree within their noise.
+TEST(Guiding, ReducesVarianceOnTheShaft) {
+  auto run = [](bool guiding) {
+    scene::Scene s = make_scene(shaft_scene(guiding, 0.5));
+    render::Renderer r(context(), s);
+    r.add_samples(64);
+    return estimate(r, glsl::ACC_VOL, glsl::ACC_VOL2);
+  };
+  Estimate u = run(false), g = run(true);
+  double var_u = 0, var_g = 0, diff = 0, var = 0;
+  for (size_t p = 0; p < u.mean.size(); ++p) {
+    var_u += u.var_of_mean[p];
+    var_g += g.var_of_mean[p];
+    diff += g.mean[p] - u.mean[p];
+    var += u.var_of_mean[p] + g.var_of_mean[p];
+  }
+  std::cout << "variance guided / unguided: " << var_g / var_u << ", z = " << diff / std::sqrt(var) << "\n";
+  EXPECT_LT(var_g, 0.5 * var_u);
+  EXPECT_LT(std::abs(diff / std::sqrt(var)), 3.89);
+}
+
+// The virtual point depth is the contribution-weighted mean distance of the samples: with single scattering
+// all contribution comes from the shaft, so it lies inside the ray's stretch of the shaft, and on average at
+// its middle.
+TEST(VirtualPoints, DepthLiesOnTheShaft) {
+  scene::Scene s = make_scene(shaft_scene(false));
+  render::Renderer r(context(), s);
+  r.add_samples(32);
+  render::Image img = r.resolve();
+  std::vector<float> acc = r.accum();
+  auto dirs = camera_directions(s);
+  int checked = 0, fallbacks = 0;
+  double offset = 0;
+  for (int y = 0; y < img.height; ++y)
+    for (int x = 0; x < img.width; ++x) {
+      glm::dvec3 d = dirs[size_t(y) * img.width + x];
+      if (1 + 6.5 / d.z * d.y > 2.9) continue;  // the ray meets the ceiling first
+      float vp = img.at(x, y, glsl::OUT_VPDEPTH);
+      if (acc[(size_t(y) * img.width + x) * glsl::ACC_STRIDE + glsl::ACC_VP_W] == 0) {
+        // No sample found the shaft (unguided, 32 samples): the fallback is the mean depth t_s.
+        EXPECT_EQ(vp, img.at(x, y, glsl::OUT_DEPTH));
+        ++fallbacks;
+        continue;
+      }
+      EXPECT_GE(vp, 5.5 / d.z - 1e-3) << x << " " << y;
+      EXPECT_LE(vp, 6.5 / d.z + 1e-3) << x << " " << y;
+      offset += vp - 6.0 / d.z;
+      ++checked;
+    }
+  EXPECT_GT(checked, 300);
+  EXPECT_LT(fallbacks, checked / 5);
+  EXPECT_LT(std::abs(offset / checked), 0.05);
+}
+
+// The volume instance runs where the scene has media, on the volume signal with the volume motion; the
+// denoised layer composites both instances; guiding and the volume instance allocate only when used.
+TEST(VolumeDenoiser, RunsAndCompositesWithItsOwnLedgerCategories) {
+  scene::Scene s = make_scene(shaft_scene(true));
+  scene::Scene moved = s;
+  moved.camera.position.x += 0.2f;
+  moved.camera.target.x += 0.2f;
+  render::Renderer r(context(), s);
+  render::Image img;
+  for (int f = 0; f < 3; ++f) {
+    const scene::Scene& now = f % 2 ? moved : s;
+    const scene::Scene& before = f % 2 ? s : moved;
+    if (f > 0) r.set_scene(now, uint32_t(f), &before);
+    r.add_samples(2);
+    img = r.resolve();
+  }
+  ASSERT_TRUE(img.volume_denoised.has_value());
+  ASSERT_TRUE(img.surface_denoised.has_value());
+  ASSERT_EQ(img.volume_motion.size(), size_t(img.width) * img.height);
+  // The shaft's points moved sideways: most pixels got a virtual point, with horizontal motion.
+  int landed = 0;
+  for (const glm::vec4& m : img.volume_motion) {
+    ASSERT_TRUE(std::isfinite(m.x) && std::isfinite(m.y) && std::isfinite(m.z));
+    if (m.w > 0.5f) ++landed;
+  }
+  EXPECT_GT(landed, img.width * img.height / 2);
+  double sum = 0;
+  for (const auto& c : img.volume_denoised->colour) sum += c.x + c.y + c.z;
+  EXPECT_GT(sum, 0);
+  nlohmann::json st = r.stats();
+  const std::string ledger = st["memory"].dump();
+  for (const char* cat : {"svgf.volume per-frame temporaries", "svgf.volume previous-frame data",
+                          "svgf.surface per-frame temporaries", "guiding state", "volume motion"})
+    EXPECT_NE(ledger.find(cat), std::string::npos) << cat;
+  EXPECT_TRUE(st["passes"].contains("svgf.volume.accumulate"));
+  EXPECT_TRUE(st["passes"].contains("guide_reproject"));
+
+  // Guiding off, no media: none of it.
+  json plain = shaft_scene(false);
+  plain.erase("haze");
+  scene::Scene p = make_scene(plain);
+  render::Renderer q(context(), p);
+  q.add_samples(1);
+  render::Image qi = q.resolve();
+  EXPECT_FALSE(qi.volume_denoised.has_value());
+  EXPECT_TRUE(qi.volume_motion.empty());
+  EXPECT_FALSE(q.features().guiding);
+  EXPECT_TRUE(q.guide_states().empty());
+  EXPECT_EQ(context().validation_messages(), 0u);
+}
+
+}  // namespace
+}  // namespace haze::test
