@@ -192,6 +192,12 @@ int main(int argc, char** argv) {
   bench->add_option("--size", bo.size, "image size WIDTHxHEIGHT");
   bench->add_option("--spp", bo.spp, "samples per measurement");
   bench->add_option("--denoise-sizes", bo.denoise_sizes, "sizes of the SVGF timings, WxH[,WxH...]");
+  bench->add_option("--guiding-size", bo.guiding_size,
+                    "image size of the guiding and volume denoiser figures");
+  bench
+      ->add_option("--guiding-seeds", bo.guiding_seeds,
+                   "seeds of the guided/unguided comparison (0: skip it)")
+      ->check(CLI::Range(0, 1000));
 
   try {
     app.parse(argc, argv);

@@ -9,6 +9,7 @@
 #include <functional>
 #include <map>
 
+#include "bench/guiding_bench.hpp"
 #include "denoise/svgf.hpp"
 #include "render/renderer.hpp"
 #include "scene/scene.hpp"
@@ -243,6 +244,14 @@ int run(const Options& o, const gpu::ContextOptions& co) {
     dn[sz] = entry;
   }
   j["svgf_surface"] = dn;
+  if (o.guiding_seeds > 0) {
+    GuidingBenchOptions go;
+    if (std::sscanf(o.guiding_size.c_str(), "%dx%d", &go.width, &go.height) != 2 || go.width < 1 ||
+        go.height < 1)
+      throw std::runtime_error(fmt::format("--guiding-size {}: expected WIDTHxHEIGHT", o.guiding_size));
+    go.seeds = o.guiding_seeds;
+    j["guiding"] = bench_guiding(ctx, go);
+  }
   if (o.json) {
     fmt::print("{}\n", j.dump(2));
     return 0;
@@ -273,6 +282,7 @@ int run(const Options& o, const gpu::ContextOptions& co) {
                  entry["subsampled"].contains(pass) ? entry["subsampled"][pass]["ratio_to_copy"].get<double>()
                                                     : 0.0);
   }
+  if (j.contains("guiding")) print_guiding(j["guiding"]);
   return 0;
 }
 

@@ -13,6 +13,8 @@ struct Options {
   std::string size = "320x180";
   int spp = 8;
   std::string denoise_sizes = "640x360,1920x1080";  // the SVGF instance's pass times at these sizes
+  std::string guiding_size = "96x54";               // guided vs unguided, volume denoiser figures
+  int guiding_seeds = 4;                            // 0: skip those figures
 };
 
 int run(const Options& o, const gpu::ContextOptions& co);

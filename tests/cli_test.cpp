@@ -347,7 +347,8 @@ TEST_F(Cli, DenoiseAnExrSequence) {
 }
 
 TEST_F(Cli, BenchReportsRatiosAsJson) {
-  auto r = run("bench --json --size 16x16 --spp 1 --denoise-sizes 24x16");
+  auto r =
+      run("bench --json --size 16x16 --spp 1 --denoise-sizes 24x16 --guiding-size 16x12 --guiding-seeds 1");
   ASSERT_EQ(r.code, 0) << r.out;
   auto j = nlohmann::json::parse(r.out.substr(r.out.find('{')));
   EXPECT_GT(j["passes"]["trace"]["ratio_to_copy"].get<double>(), 0.0);
@@ -355,6 +356,10 @@ TEST_F(Cli, BenchReportsRatiosAsJson) {
   EXPECT_GT(j["density_lookups_per_s"].get<double>(), 0.0);
   for (const char* kernel : {"5x5", "subsampled"})
     EXPECT_GT(j["svgf_surface"]["24x16"][kernel]["total"]["ratio_to_copy"].get<double>(), 0.0) << kernel;
+  for (const auto& e : j["guiding"]["equal_time"])
+    EXPECT_GT(e["relmse_ratio_unguided_over_guided"]["mean"].get<double>(), 0.0);
+  EXPECT_GT(j["guiding"]["volume_denoiser"]["relmse_ratio_surface_motion_over_virtual_points"].get<double>(),
+            0.0);
 }
 
 }  // namespace
