@@ -13,6 +13,7 @@
 
 #include "bench/bench.hpp"
 #include "gpu/gpu.hpp"
+#include "render/compare.hpp"
 #include "render/denoise_sequence.hpp"
 #include "render/output.hpp"
 #include "render/renderer.hpp"
@@ -162,6 +163,17 @@ int main(int argc, char** argv) {
                  "denoiser and preview settings as scene paths: denoise.surface.*, render.exposure, "
                  "render.tonemap (repeatable)");
 
+  auto* cmp = app.add_subcommand(
+      "compare",
+      "relMSE, SMAPE, MSE, PSNR of TEST against REF (two .exr files, or two folders of frames with "
+      "the temporal-stability measure)");
+  std::string cmp_ref, cmp_test, cmp_layer;
+  bool cmp_json = false;
+  cmp->add_option("reference", cmp_ref, "reference .exr or folder of frames")->required();
+  cmp->add_option("test", cmp_test, "test .exr or folder of frames")->required();
+  cmp->add_option("--layer", cmp_layer, "EXR layer to compare (default: R, G, B), e.g. volume, denoised");
+  cmp->add_flag("--json", cmp_json, "print JSON");
+
   auto* vdbcmd = app.add_subcommand("vdb", "make and inspect .vdb files");
   vdbcmd->require_subcommand(1);
   auto* make =
@@ -246,6 +258,11 @@ int main(int argc, char** argv) {
       return 0;
     }
     if (*bench) return haze::bench::run(bo, co);
+    if (*cmp) {
+      nlohmann::json j = render::compare_paths(cmp_ref, cmp_test, cmp_layer);
+      fmt::print("{}", cmp_json ? j.dump(2) + "\n" : render::format_comparison(j));
+      return 0;
+    }
     if (*dn) {
       nlohmann::json j = nlohmann::json::object();
       for (const auto& a : dn_sets) scene::apply_override(j, a, "--set");

@@ -346,6 +346,47 @@ TEST_F(Cli, DenoiseAnExrSequence) {
                         "denoise.surface.phi_luminance");
 }
 
+// haze compare on two hand-made EXRs, on sequences, and its bad inputs.
+TEST_F(Cli, CompareImagesAndSequences) {
+  auto exr = [&](const std::string& name, std::vector<float> v, int w = 2) {
+    std::vector<float> zero(v.size(), 0.f);
+    std::string p = (dir / name).string();
+    haze::render::write_exr_channels(p, w, int(v.size()) / w,
+                                     {{"R", &zero}, {"G", &zero}, {"B", &zero}, {"volume.Y", &v}});
+    return p;
+  };
+  std::string ref = exr("ref.exr", {1.f, 0.f}), test = exr("test.exr", {1.1f, 0.1f});
+  auto r = run(fmt::format("compare {} {} --layer volume --json", ref, test));
+  ASSERT_EQ(r.code, 0) << r.out;
+  auto j = nlohmann::json::parse(r.out);
+  EXPECT_NEAR(j["mean"]["relmse"].get<double>(), (0.01 / 1.01 + 1.0) / 2, 1e-6);
+  EXPECT_NEAR(j["mean"]["psnr"].get<double>(), 20.0, 1e-4);
+  auto text = run(fmt::format("compare {} {}", ref, test));
+  ASSERT_EQ(text.code, 0) << text.out;
+  EXPECT_NE(text.out.find("PSNR inf dB"), std::string::npos) << text.out;  // R, G, B are equal
+
+  fs::create_directories(dir / "rs");
+  fs::create_directories(dir / "ts");
+  exr("rs/f0.exr", {1.f, 0.f});
+  exr("rs/f1.exr", {2.f, 0.f});
+  exr("ts/f0.exr", {1.f, 0.f});
+  exr("ts/f1.exr", {2.f, 0.5f});
+  auto s =
+      run(fmt::format("compare {} {} --layer volume --json", (dir / "rs").string(), (dir / "ts").string()));
+  ASSERT_EQ(s.code, 0) << s.out;
+  auto js = nlohmann::json::parse(s.out);
+  EXPECT_EQ(js["frames"].size(), 2u);
+  EXPECT_NEAR(js["temporal"]["change_ratio"].get<double>(), 1.5, 1e-9);
+
+  expect_one_line_error(run(fmt::format("compare {} {}", ref, (dir / "none.exr").string())), "none.exr");
+  expect_one_line_error(run(fmt::format("compare {} {} --layer denoised", ref, test)), "--layer");
+  expect_one_line_error(run(fmt::format("compare {} {}", ref, exr("wide.exr", {1, 2, 3, 4}, 4))),
+                        "compare images of one size");
+  expect_one_line_error(run(fmt::format("compare {} {} --layer volume", ref, exr("nan.exr", {NAN, 0.f}))),
+                        "non-finite");
+  expect_one_line_error(run(fmt::format("compare {} {}", ref, (dir / "rs").string())), "two folders");
+}
+
 TEST_F(Cli, BenchReportsRatiosAsJson) {
   auto r =
       run("bench --json --size 16x16 --spp 1 --denoise-sizes 24x16 --guiding-size 16x12 --guiding-seeds 1");

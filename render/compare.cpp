@@ -1,0 +1,160 @@
+#include "render/compare.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+
+#include "render/metrics.hpp"
+#include "render/output.hpp"
+
+namespace haze::render {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+// One layer of an EXR as interleaved floats (channels in the reference's order).
+struct LayerImage {
+  int width = 0, height = 0;
+  std::vector<std::string> channels;
+  std::vector<float> data;
+  Channels view() const {
+    uint32_t n = uint32_t(channels.size());
+    return {data.data(), size_t(width) * height, n, 0, n};
+  }
+};
+
+std::vector<std::string> layer_channels(const ExrImage& img, const std::string& layer) {
+  std::vector<std::string> out;
+  for (const auto& c : img.channels) {
+    bool base = c.find('.') == std::string::npos;
+    if (layer.empty() ? base : c.rfind(layer + ".", 0) == 0) out.push_back(c);
+  }
+  return out;
+}
+
+std::string layer_list(const ExrImage& img) {
+  std::vector<std::string> names;
+  for (const auto& c : img.channels) {
+    size_t dot = c.rfind('.');
+    std::string n = dot == std::string::npos ? "\"\" (R, G, B)" : c.substr(0, dot);
+    if (std::find(names.begin(), names.end(), n) == names.end()) names.push_back(n);
+  }
+  std::string s;
+  for (const auto& n : names) s += (s.empty() ? "" : ", ") + n;
+  return s;
+}
+
+LayerImage load_layer(const std::string& path, const std::string& layer,
+                      const std::vector<std::string>* want) {
+  ExrImage img = read_exr(path);
+  LayerImage li;
+  li.width = img.width;
+  li.height = img.height;
+  li.channels = want ? *want : layer_channels(img, layer);
+  const std::string shown = layer.empty() ? "the base layer (R, G, B)" : fmt::format("layer '{}'", layer);
+  if (li.channels.empty())
+    throw Error(fmt::format("{}: no {}; pass --layer with one of: {}", path, shown, layer_list(img)));
+  const size_t pixels = size_t(img.width) * img.height;
+  li.data.resize(pixels * li.channels.size());
+  size_t nonfinite = 0;
+  for (size_t c = 0; c < li.channels.size(); ++c) {
+    auto it = std::find(img.channels.begin(), img.channels.end(), li.channels[c]);
+    if (it == img.channels.end())
+      throw Error(fmt::format("{}: has no channel {} that the reference has; compare images with the same {}",
+                              path, li.channels[c], shown));
+    const auto& plane = img.data[size_t(it - img.channels.begin())];
+    for (size_t p = 0; p < pixels; ++p) {
+      li.data[p * li.channels.size() + c] = plane[p];
+      if (!std::isfinite(plane[p])) ++nonfinite;
+    }
+  }
+  if (nonfinite)
+    throw Error(fmt::format("{}: {} has {} non-finite values (NaN or Inf); metrics need finite images", path,
+                            shown, nonfinite));
+  return li;
+}
+
+std::vector<std::string> exr_files(const std::string& dir) {
+  std::vector<std::string> files;
+  for (const auto& e : fs::directory_iterator(dir))
+    if (e.is_regular_file() && e.path().extension() == ".exr") files.push_back(e.path().string());
+  std::sort(files.begin(), files.end());
+  if (files.empty())
+    throw Error(fmt::format("{}: no .exr files; pass a folder of EXR frames or one .exr", dir));
+  return files;
+}
+
+}  // namespace
+
+nlohmann::json compare_paths(const std::string& ref, const std::string& test, const std::string& layer) {
+  for (const auto& p : {ref, test})
+    if (!fs::exists(p)) throw Error(fmt::format("cannot open {}: no such file or folder", p));
+  const bool seq = fs::is_directory(ref);
+  if (seq != fs::is_directory(test))
+    throw Error(fmt::format("{} and {}: compare two .exr files or two folders of frames, not one of each",
+                            ref, test));
+  std::vector<std::string> refs = seq ? exr_files(ref) : std::vector<std::string>{ref};
+  std::vector<std::string> tests = seq ? exr_files(test) : std::vector<std::string>{test};
+  if (refs.size() != tests.size())
+    throw Error(fmt::format("{} has {} frames, {} has {}; sequences must have as many frames", test,
+                            tests.size(), ref, refs.size()));
+  std::vector<LayerImage> r, t;
+  nlohmann::json frames = nlohmann::json::array();
+  Metrics sum;
+  for (size_t f = 0; f < refs.size(); ++f) {
+    r.push_back(load_layer(refs[f], layer, nullptr));
+    t.push_back(load_layer(tests[f], layer, &r.back().channels));
+    if (t.back().width != r.back().width || t.back().height != r.back().height)
+      throw Error(fmt::format("{} is {}x{}, {} is {}x{}; compare images of one size", tests[f],
+                              t.back().width, t.back().height, refs[f], r.back().width, r.back().height));
+    Metrics m = compare(t.back().view(), r.back().view());
+    frames.push_back({{"reference", refs[f]}, {"test", tests[f]}, {"metrics", m.to_json()}});
+    sum.relmse += m.relmse;
+    sum.smape += m.smape;
+    sum.mse += m.mse;
+  }
+  const double n = double(refs.size());
+  Metrics mean{sum.relmse / n, sum.smape / n, sum.mse / n, psnr(sum.mse / n)};
+  nlohmann::json j = {{"layer", layer},
+                      {"channels", r.front().channels},
+                      {"size", {r.front().width, r.front().height}},
+                      {"frames", frames},
+                      {"mean", mean.to_json()}};
+  if (seq && refs.size() > 1) {
+    std::vector<Channels> tv, rv;
+    for (size_t f = 0; f < refs.size(); ++f) {
+      tv.push_back(t[f].view());
+      rv.push_back(r[f].view());
+    }
+    j["temporal"] = temporal(tv, rv).to_json();
+  }
+  return j;
+}
+
+std::string format_comparison(const nlohmann::json& j) {
+  auto num = [](const nlohmann::json& v) {
+    return v.is_string() ? v.get<std::string>() : fmt::format("{:.6g}", v.get<double>());
+  };
+  auto line = [&](const nlohmann::json& m) {
+    return fmt::format("relMSE {}  SMAPE {}  MSE {}  PSNR {} dB", num(m["relmse"]), num(m["smape"]),
+                       num(m["mse"]), num(m["psnr"]));
+  };
+  std::string s;
+  const auto& frames = j["frames"];
+  if (frames.size() > 1)
+    for (const auto& f : frames)
+      s += fmt::format("{}: {}\n", f["test"].get<std::string>(), line(f["metrics"]));
+  s += fmt::format(
+      "{}{} ({}, {}x{})\n", frames.size() > 1 ? "mean: " : "", line(j["mean"]),
+      j["layer"].get<std::string>().empty() ? "R, G, B" : "layer " + j["layer"].get<std::string>(),
+      j["size"][0].get<int>(), j["size"][1].get<int>());
+  if (j.contains("temporal"))
+    s += fmt::format("temporal: relMSE of the frame-to-frame change {}, change ratio test / reference {}\n",
+                     num(j["temporal"]["relmse_of_change"]), num(j["temporal"]["change_ratio"]));
+  return s;
+}
+
+}  // namespace haze::render
