@@ -274,7 +274,9 @@ TEST_P(GuidedSlab, VdbCloudMatchesUnguided) {
   double z = diff / std::sqrt(var);
   EXPECT_LT(std::abs(z), kZ) << "z = " << z;
   // P = 0 draws no guide candidates and learns nothing: exactly the unguided samples.
-  if (GetParam() == 0) EXPECT_EQ(diff, 0.0);
+  if (GetParam() == 0) {
+    EXPECT_EQ(diff, 0.0);
+  }
   std::cout << "z = " << z << "\n";
   EXPECT_EQ(context().validation_messages(), 0u);
 }

@@ -49,11 +49,12 @@ void expect_finite(render::Renderer& r, const std::string& what) {
     img = r.resolve();
   }
   EXPECT_TRUE(finite(img.data)) << what;
-  for (size_t i = 0; i < img.gbuffer.size(); ++i)
-    if (i % glsl::G_STRIDE != glsl::G_INSTANCE)  // an id stored as float bits (none: 0xffffffff)
-      ASSERT_TRUE(std::isfinite(img.gbuffer[i]))
-          << what << ": g-buffer channel " << i % glsl::G_STRIDE << " of pixel " << i / glsl::G_STRIDE
-          << " is " << img.gbuffer[i];
+  for (size_t i = 0; i < img.gbuffer.size(); ++i) {
+    if (i % glsl::G_STRIDE == glsl::G_INSTANCE) continue;  // an id stored as float bits (none: 0xffffffff)
+    ASSERT_TRUE(std::isfinite(img.gbuffer[i]))
+        << what << ": g-buffer channel " << i % glsl::G_STRIDE << " of pixel " << i / glsl::G_STRIDE << " is "
+        << img.gbuffer[i];
+  }
   for (const auto* d : {&img.surface_denoised, &img.volume_denoised})
     if (d->has_value()) {
       for (const auto& c : (*d)->colour) ASSERT_TRUE(std::isfinite(c.x + c.y + c.z)) << what;
