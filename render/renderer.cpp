@@ -217,33 +217,11 @@ void Renderer::set_scene(const scene::Scene& s, uint32_t frame, const scene::Sce
                       2 + surface_buffers, 0);
 
   // The surface denoiser keeps its history across frames of the same size.
-  if (features_.surfaces && s.denoise.surface.enabled) {
-    if (!svgf_surface_ || svgf_surface_->width() != uint32_t(s.render.width) ||
-        svgf_surface_->height() != uint32_t(s.render.height)) {
-      svgf_surface_.reset();
-      svgf_surface_ = std::make_unique<denoise::Svgf>(ctx_, "surface", s.denoise.surface, s.render.width,
-                                                      s.render.height, /*remodulate=*/true, dir);
-      pipeline_ms_ += svgf_surface_->pipeline_ms();
-    } else {
-      svgf_surface_->set_params(s.denoise.surface);
-    }
-  } else {
-    svgf_surface_.reset();
-  }
-  // The volume instance: the volume signal with albedo 1, the volume motion vectors.
-  if (media && s.denoise.volume.enabled) {
-    if (!svgf_volume_ || svgf_volume_->width() != uint32_t(s.render.width) ||
-        svgf_volume_->height() != uint32_t(s.render.height)) {
-      svgf_volume_.reset();
-      svgf_volume_ = std::make_unique<denoise::Svgf>(ctx_, "volume", s.denoise.volume, s.render.width,
-                                                     s.render.height, /*remodulate=*/false, dir);
-      pipeline_ms_ += svgf_volume_->pipeline_ms();
-    } else {
-      svgf_volume_->set_params(s.denoise.volume);
-    }
-  } else {
-    svgf_volume_.reset();
-  }
+  // The surface instance on the demodulated surface signal; the volume instance on the volume signal with
+  // albedo 1 and the volume motion vectors.
+  keep_svgf(svgf_surface_, "surface", features_.surfaces && s.denoise.surface.enabled, s.denoise.surface,
+            true);
+  keep_svgf(svgf_volume_, "volume", media && s.denoise.volume.enabled, s.denoise.volume, false);
   if (svgf_surface_ || svgf_volume_)
     tonemap_ = pipeline(fmt::format("{}/denoise/tonemap.comp.0.spv", dir), 3, sizeof(TonemapPush),
                         {svgf_surface_ ? 1u : 0u, svgf_volume_ ? 1u : 0u});
@@ -260,6 +238,20 @@ void Renderer::set_scene(const scene::Scene& s, uint32_t frame, const scene::Sce
   }
   guide_reproject_ =
       features_.guiding ? pipeline(fmt::format("{}/guiding/guide_reproject.comp.0.spv", dir), 4, 0) : nullptr;
+}
+
+void Renderer::keep_svgf(std::unique_ptr<denoise::Svgf>& svgf, const char* name, bool wanted,
+                         const denoise::SvgfParams& params, bool remodulate) {
+  const auto& r = scene_.render;
+  if (!wanted) {
+    svgf.reset();
+  } else if (svgf && svgf->width() == uint32_t(r.width) && svgf->height() == uint32_t(r.height)) {
+    svgf->set_params(params);
+  } else {
+    svgf.reset();
+    svgf = std::make_unique<denoise::Svgf>(ctx_, name, params, r.width, r.height, remodulate, spv_dir());
+    pipeline_ms_ += svgf->pipeline_ms();
+  }
 }
 
 TonemapPush tonemap_push(const scene::RenderSettings& r, uint32_t pixels, glm::uvec2 surface_layout,
@@ -355,11 +347,14 @@ void Renderer::add_samples(int n, const std::function<void(int, int)>& progress)
 Image Renderer::resolve() {
   const auto& r = scene_.render;
   uint32_t pixels = uint32_t(r.width) * uint32_t(r.height);
+  // The preview composites the denoised signals (or the noisy one where an instance does not run).
+  const TonemapPush tp = tonemap_push(r, pixels, glm::uvec2(glsl::OUT_STRIDE, glsl::OUT_SURF),
+                                      glm::uvec2(glsl::OUT_STRIDE, glsl::OUT_VOL));
   struct {
     uint32_t pixels, samples;
     float exposure_scale;
     uint32_t tonemap;
-  } push{pixels, uint32_t(samples_), std::exp2(r.exposure), tonemap_push(r, pixels).tonemap};
+  } push{pixels, uint32_t(samples_), tp.exposure_scale, tp.tonemap};
   ctx_.submit_and_wait([&](VkCommandBuffer cmd) {
     timer_->reset(cmd);
     timer_->begin(cmd, "resolve");
@@ -388,9 +383,6 @@ Image Renderer::resolve() {
       }
       svgf_volume_->run(cmd, timer_.get(), in);
     }
-    // The preview composites the denoised signals (or the noisy one where an instance does not run).
-    const TonemapPush tp = tonemap_push(r, pixels, glm::uvec2(glsl::OUT_STRIDE, glsl::OUT_SURF),
-                                        glm::uvec2(glsl::OUT_STRIDE, glsl::OUT_VOL));
     timer_->begin(cmd, "tonemap");
     tonemap_->dispatch(cmd,
                        {svgf_surface_ ? &svgf_surface_->output() : &out_buf_,
@@ -415,10 +407,6 @@ Image Renderer::resolve() {
 
 std::vector<glm::vec4> Renderer::guide_states() const {
   return guide_buf_.valid() ? guide_buf_.download_vector<glm::vec4>() : std::vector<glm::vec4>{};
-}
-
-std::vector<glm::vec4> Renderer::volume_motion() const {
-  return volume_motion_ ? volume_motion_->download() : std::vector<glm::vec4>{};
 }
 
 std::vector<float> Renderer::accum() const {

@@ -89,8 +89,6 @@ class Renderer {
   // The distance-guiding states (K vec4 {W, N, m1, m2} per grid vertex, shaders/guiding/guide.glsl); empty
   // without guiding.
   std::vector<glm::vec4> guide_states() const;
-  // The volume motion vectors of the current frame (empty where not computed).
-  std::vector<glm::vec4> volume_motion() const;
   const std::map<std::string, PassStats>& pass_stats() const { return passes_; }
   double pipeline_ms() const { return pipeline_ms_; }
   nlohmann::json stats() const;
@@ -130,6 +128,10 @@ class Renderer {
   void append_surface_buffers(std::vector<const gpu::Buffer*>& b) const;
   const gpu::ComputePipeline* pipeline(const std::string& spv, uint32_t num_buffers, uint32_t push_bytes,
                                        const std::vector<uint32_t>& spec = {});
+  // Makes `svgf` exist with `params` at the scene's size when `wanted` (keeping its history when the size is
+  // unchanged), else drops it.
+  void keep_svgf(std::unique_ptr<denoise::Svgf>& svgf, const char* name, bool wanted,
+                 const denoise::SvgfParams& params, bool remodulate);
   // Where this frame starts: the previous frame's virtual points projected forward, the guide carried over.
   void start_frame(VkCommandBuffer cmd);
   // Reallocates `b` only when its size changes.

@@ -48,6 +48,19 @@ json box_medium(double scale, double albedo, double g) {
           {"g", g}};
 }
 
+// A procedural cloud of diameter 2 at the origin, 0.08 voxels.
+json cloud_medium(double density, int seed, const std::vector<double>& albedo, double g) {
+  return {{"procedural",
+           {{"kind", "cloud"},
+            {"voxel_size", 0.08},
+            {"center", {0, 0, 0}},
+            {"size", {2, 2, 2}},
+            {"density", density},
+            {"seed", seed}}},
+          {"albedo", albedo},
+          {"g", g}};
+}
+
 // Density profile (in world y) of the box: 1 on the voxel centres it covers, linear to 0 over one voxel
 // outside (trilinear interpolation), and its integral from -inf to y.
 struct BoxProfile {
@@ -244,16 +257,7 @@ INSTANTIATE_TEST_SUITE_P(P, GuidedSlab, ::testing::Values(0.0, 0.5, 0.9));
 // estimator must agree with the unguided one, each at a high sample count (two-sample z-test).
 TEST_P(GuidedSlab, VdbCloudMatchesUnguided) {
   json j = {{"camera", {{"position", {0.3, 0.2, 3}}, {"target", {0, 0, 0}}, {"fov_y", 40}}},
-            {"media",
-             {{{"procedural",
-                {{"kind", "cloud"},
-                 {"voxel_size", 0.08},
-                 {"center", {0, 0, 0}},
-                 {"size", {2, 2, 2}},
-                 {"density", 2.5},
-                 {"seed", 3}}},
-               {"albedo", {0.9, 0.8, 0.7}},
-               {"g", 0.3}}}},
+            {"media", json::array({cloud_medium(2.5, 3, {0.9, 0.8, 0.7}, 0.3)})},
             {"lights",
              {{"sun", {{"direction", {0.3, 1, 0.2}}, {"irradiance", 3}, {"angular_diameter", 0}}},
               {"points", {{{"position", {-0.5, 0.9, 0.4}}, {"intensity", 2}}}}}},
@@ -292,16 +296,7 @@ TEST(Estimator, AirlightWithMajorantExponentialOnly) {
 // whatever the media (a cloud and overlapping haze, multiple scattering).
 TEST(Estimator, WhiteFurnaceWithOverlappingMedia) {
   json j = {{"camera", {{"position", {0, 0, 4}}, {"target", {0, 0, 0}}, {"fov_y", 40}}},
-            {"media",
-             {{{"procedural",
-                {{"kind", "cloud"},
-                 {"voxel_size", 0.08},
-                 {"center", {0, 0, 0}},
-                 {"size", {2, 2, 2}},
-                 {"density", 3.0},
-                 {"seed", 5}}},
-               {"albedo", {1, 1, 1}},
-               {"g", 0.5}}}},
+            {"media", json::array({cloud_medium(3.0, 5, {1, 1, 1}, 0.5)})},
             {"haze",
              {{"sigma_t", 0.7},
               {"albedo", {1, 1, 1}},

@@ -88,66 +88,37 @@ TEST_P(Extremes, StayFinite) {
   expect_finite(*r, GetParam().name);
 }
 
+// A `media` list for a patch: the base scene's cloud, 16 voxels across, with these medium keys.
+json cloud(const json& keys, double voxel_size = 0.1) {
+  json m = {{"procedural",
+             {{"kind", "cloud"},
+              {"voxel_size", voxel_size},
+              {"center", {0, 0.5, 0}},
+              {"size", {16 * voxel_size, 16 * voxel_size, 16 * voxel_size}},
+              {"density", 2},
+              {"seed", 2}}}};
+  m.update(keys);
+  return json::array({m});
+}
+
 json media_albedo(double a) {
-  return {{"media",
-           {{{"procedural",
-              {{"kind", "cloud"},
-               {"voxel_size", 0.1},
-               {"center", {0, 0.5, 0}},
-               {"size", {1.6, 1.6, 1.6}},
-               {"density", 2},
-               {"seed", 2}}},
-             {"albedo", {a, a, a}}}}},
-          {"haze", {{"albedo", {a, a, a}}}}};
+  return {{"media", cloud({{"albedo", {a, a, a}}})}, {"haze", {{"albedo", {a, a, a}}}}};
 }
 
 json voxel(double v) {
-  return {{"media",
-           {{{"procedural",
-              {{"kind", "cloud"},
-               {"voxel_size", v},
-               {"center", {0, 0.5, 0}},
-               {"size", {16 * v, 16 * v, 16 * v}},
-               {"density", 2},
-               {"seed", 2}}}}}}};
+  return {{"media", cloud(json::object(), v)}};
 }
 
 json density(double d) {
-  return {{"media",
-           {{{"procedural",
-              {{"kind", "cloud"},
-               {"voxel_size", 0.1},
-               {"center", {0, 0.5, 0}},
-               {"size", {1.6, 1.6, 1.6}},
-               {"density", 2},
-               {"seed", 2}}},
-             {"density_scale", d}}}},
-          {"haze", {{"sigma_t", d}}}};
+  return {{"media", cloud({{"density_scale", d}})}, {"haze", {{"sigma_t", d}}}};
 }
 
 json emission(double scale) {
-  return {{"media",
-           {{{"procedural",
-              {{"kind", "cloud"},
-               {"voxel_size", 0.1},
-               {"center", {0, 0.5, 0}},
-               {"size", {1.6, 1.6, 1.6}},
-               {"density", 2},
-               {"seed", 2}}},
-             {"emission", {{"mode", "scale"}, {"grid", "density"}, {"scale", scale}}}}}}};
+  return {{"media", cloud({{"emission", {{"mode", "scale"}, {"grid", "density"}, {"scale", scale}}}})}};
 }
 
 json g(double v) {
-  return {{"media",
-           {{{"procedural",
-              {{"kind", "cloud"},
-               {"voxel_size", 0.1},
-               {"center", {0, 0.5, 0}},
-               {"size", {1.6, 1.6, 1.6}},
-               {"density", 2},
-               {"seed", 2}}},
-             {"g", v}}}},
-          {"haze", {{"g", v}}}};
+  return {{"media", cloud({{"g", v}})}, {"haze", {{"g", v}}}};
 }
 
 INSTANTIATE_TEST_SUITE_P(
