@@ -16,7 +16,11 @@
 #include "render/compare.hpp"
 #include "render/denoise_sequence.hpp"
 #include "render/output.hpp"
+#include "render/reference.hpp"
 #include "render/renderer.hpp"
+#include "render/report.hpp"
+#include "render/run.hpp"
+#include "render/sweep.hpp"
 #include "scene/animation.hpp"
 #include "scene/scene.hpp"
 #include "vdb/vdb.h"
@@ -48,19 +52,23 @@ gpu::ContextOptions context_options(const std::string& device, bool validation, 
   return o;
 }
 
+// "WxH" into render.width/height overrides.
+void size_overrides(const std::string& size, std::vector<std::string>& overrides) {
+  if (size.empty()) return;
+  int w = 0, h = 0;
+  char x = 0;
+  if (std::sscanf(size.c_str(), "%d%c%d", &w, &x, &h) != 3 || (x != 'x' && x != 'X'))
+    throw std::runtime_error(fmt::format("--size {}: expected WIDTHxHEIGHT, e.g. 320x180", size));
+  overrides.push_back(fmt::format("render.width={}", w));
+  overrides.push_back(fmt::format("render.height={}", h));
+}
+
 int run_render(const std::string& scene_path, const std::string& out, int spp, const std::string& size,
                const std::string& frames, const std::vector<std::string>& sets,
                const gpu::ContextOptions& co) {
   std::vector<std::string> overrides = sets;
   if (spp > 0) overrides.push_back(fmt::format("render.spp={}", spp));
-  if (!size.empty()) {
-    int w = 0, h = 0;
-    char x = 0;
-    if (std::sscanf(size.c_str(), "%d%c%d", &w, &x, &h) != 3 || (x != 'x' && x != 'X'))
-      throw std::runtime_error(fmt::format("--size {}: expected WIDTHxHEIGHT, e.g. 320x180", size));
-    overrides.push_back(fmt::format("render.width={}", w));
-    overrides.push_back(fmt::format("render.height={}", h));
-  }
+  size_overrides(size, overrides);
   // --frames goes through the scene's own render.frames so that sequence files are checked for exactly these.
   if (!frames.empty()) {
     scene::parse_frames(frames);
@@ -71,57 +79,117 @@ int run_render(const std::string& scene_path, const std::string& out, int spp, c
   render::ensure_writable_dir(out);
   gpu::Context ctx(co);
   fmt::print(stderr, "device: {} ({})\n", ctx.device_name(), ctx.driver_info());
-  std::unique_ptr<render::Renderer> r;
-  nlohmann::json per_frame = nlohmann::json::array();
-  std::vector<std::string> notes;
-  double setup_s = 0, render_s = 0;
-  for (int f = first; f <= last; ++f) {
-    auto t0 = std::chrono::steady_clock::now();
-    scene::Scene fs = scene::scene_at_frame(s, f);
-    scene::Scene prev = scene::scene_at_frame(s, f - 1);  // for motion vectors
-    if (!r)
-      r = std::make_unique<render::Renderer>(ctx, fs, uint32_t(f), &prev);
-    else
-      r->set_scene(fs, uint32_t(f), &prev);
-    for (const auto& n : r->notes())
-      if (std::find(notes.begin(), notes.end(), n) == notes.end()) {
-        fmt::print(stderr, "note: {}\n", n);
-        notes.push_back(n);
-      }
-    auto t1 = std::chrono::steady_clock::now();
-    if (last > first) fmt::print(stderr, "frame {} ({}..{})\n", f, first, last);
-    size_t before = r->pass_stats().count("trace") ? r->pass_stats().at("trace").ms.size() : 0;
-    r->add_samples(fs.render.spp, Progress{});
-    render::Image img = r->resolve();
-    auto t2 = std::chrono::steady_clock::now();
+  render::FrameLoop loop;
+  loop.progress = Progress{};
+  loop.on_note = [](const std::string& n) { fmt::print(stderr, "note: {}\n", n); };
+  loop.on_frame_start = [](int f, int a, int b) {
+    if (b > a) fmt::print(stderr, "frame {} ({}..{})\n", f, a, b);
+  };
+  loop.on_frame = [&](int f, const render::Image& img) {
     std::string base = (std::filesystem::path(out) / fmt::format("frame_{:04d}", f)).string();
-    if (fs.render.wants("exr")) render::write_exr(base + ".exr", img);
-    if (fs.render.wants("png")) render::write_png(base + ".png", img);
-    const auto& trace = r->pass_stats().at("trace").ms;
-    double trace_ms = 0;
-    for (size_t i = before; i < trace.size(); ++i) trace_ms += trace[i];
-    double fsetup = std::chrono::duration<double>(t1 - t0).count();
-    double frender = std::chrono::duration<double>(t2 - t1).count();
-    setup_s += fsetup;
-    render_s += frender;
-    per_frame.push_back(
-        {{"frame", f}, {"setup_s", fsetup}, {"render_s", frender}, {"trace_gpu_ms", trace_ms}});
-  }
-  nlohmann::json st = r->stats();
+    if (s.render.wants("exr")) render::write_exr(base + ".exr", img);
+    if (s.render.wants("png")) render::write_png(base + ".png", img);
+  };
+  std::unique_ptr<render::Renderer> r;
+  render::RunSummary run = render::render_frames(ctx, s, first, last, loop, r);
+  nlohmann::json st = run.stats;
   st["scene"] = scene::to_json(s);
   st["scene_file"] = scene_path;
-  st["frames"] = per_frame;
-  st["notes"] = notes;  // of every frame, each once
-  st["setup_s"] = setup_s;
-  st["render_s"] = render_s;
+  st["frames"] = run.per_frame;
+  st["notes"] = run.notes;  // of every frame, each once
+  st["setup_s"] = run.setup_s;
+  st["render_s"] = run.render_s;
   if (s.render.wants("stats")) render::write_json((std::filesystem::path(out) / "stats.json").string(), st);
   fmt::print(stderr, "wrote {} ({} frame{}, {} spp, {:.1f} s setup, {:.1f} s render)\n", out,
-             last - first + 1, last > first ? "s" : "", s.render.spp, setup_s, render_s);
+             last - first + 1, last > first ? "s" : "", s.render.spp, run.setup_s, run.render_s);
   if (ctx.validation_messages() > 0) {
     fmt::print(stderr, "haze: {} Vulkan validation messages\n", ctx.validation_messages());
     return 3;
   }
   return 0;
+}
+
+int run_reference(const std::string& scene_path, const std::string& out, const std::string& frames,
+                  const std::string& size, const std::vector<std::string>& sets, const render::ReferenceOptions& o,
+                  const gpu::ContextOptions& co) {
+  if (o.min_spp > o.max_spp)
+    throw std::runtime_error(fmt::format("--min-spp {} is above --max-spp {}; lower it", o.min_spp, o.max_spp));
+  std::vector<std::string> overrides = sets;
+  size_overrides(size, overrides);
+  if (!frames.empty()) {
+    scene::parse_frames(frames);
+    overrides.push_back(fmt::format("render.frames={}", frames));
+  }
+  scene::Scene s = scene::load(scene_path, overrides);
+  auto [first, last] = scene::frame_range(s);
+  render::ensure_writable_dir(out);
+  gpu::Context ctx(co);
+  fmt::print(stderr, "device: {} ({})\n", ctx.device_name(), ctx.driver_info());
+  render::ReferenceHooks hooks;
+  hooks.on_check = [&](const render::ReferenceFrame& f) {
+    fmt::print(stderr, "frame {}: {} spp, error {:.4g} at quantile {} (max {:.4g}), target {}\n", f.frame, f.spp,
+               f.error_quantile, o.quantile, f.error_max, o.target);
+  };
+  hooks.on_frame = [&](const render::ReferenceFrame& f, bool cached) {
+    if (cached) fmt::print(stderr, "frame {}: up to date ({} spp)\n", f.frame, f.spp);
+    else if (!f.converged)
+      fmt::print(stderr, "frame {}: sample budget {} spent before the target; raise --max-spp\n", f.frame, f.spp);
+  };
+  std::unique_ptr<render::Renderer> r;
+  nlohmann::json info = render::make_reference(ctx, s, first, last, out, o, hooks, r);
+  fmt::print(stderr, "wrote {} (key {})\n", out, info["key"].get<std::string>());
+  return ctx.validation_messages() > 0 ? 3 : 0;
+}
+
+int run_sweep(const std::string& file, const std::string& out, const std::string& shard_text, bool merge,
+              bool list, const std::vector<std::string>& sets, const gpu::ContextOptions& co) {
+  render::SweepSpec spec = render::load_sweep(file, sets);
+  render::Shard shard = shard_text.empty() ? render::Shard{} : render::parse_shard(shard_text);
+  if (merge) {
+    nlohmann::json m = render::merge_sweep(spec, out);
+    fmt::print(stderr, "merged {} runs from {} folders into {}/results.jsonl and results.csv\n",
+               m["merged"].get<size_t>(), m["sources"].get<size_t>(), out);
+    return 0;
+  }
+  std::vector<render::Run> runs = render::expand(spec);
+  render::check_runs(spec, runs);
+  if (list) {
+    for (const auto& r : render::shard_runs(runs, shard))
+      fmt::print("{}\n", nlohmann::json{{"index", r.index}, {"run", r.id}, {"settings", r.settings}}.dump());
+    return 0;
+  }
+  gpu::Context ctx(co);
+  fmt::print(stderr, "device: {} ({})\n", ctx.device_name(), ctx.driver_info());
+  const bool tty = isatty(fileno(stderr));
+  const auto start = std::chrono::steady_clock::now();
+  render::SweepHooks hooks;
+  hooks.log = [&](const std::string& line) { fmt::print(stderr, "{}{}\n", tty ? "\r\033[K" : "", line); };
+  hooks.progress = [&](size_t done, size_t total, const nlohmann::json* row) {
+    double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    double eta = done > 0 ? el / double(done) * double(total - done) : 0;
+    std::string last;
+    if (row) {
+      last = fmt::format("run {} {:.3g} ms/frame", (*row)["index"].get<size_t>(),
+                         (*row)["time"]["gpu_ms_per_frame"].get<double>());
+      if (row->contains("metrics") && (*row)["metrics"].contains("relmse"))
+        last += fmt::format(" relMSE {:.3g}", (*row)["metrics"]["relmse"].get<double>());
+    }
+    int w = 30, filled = total > 0 ? int(w * done / total) : w;
+    if (tty)
+      fmt::print(stderr, "\r\033[K[{}{}] {}/{} runs  {:.0f}s  ETA {:.0f}s  {}", std::string(filled, '#'),
+                 std::string(w - filled, '.'), done, total, el, eta, last);
+    else if (row)
+      fmt::print(stderr, "{}/{} runs  {:.0f}s  ETA {:.0f}s  {}\n", done, total, el, eta, last);
+    if (tty && done == total) fmt::print(stderr, "\n");
+  };
+  int code = render::run_sweep(ctx, spec, out, shard, hooks);
+  fmt::print(stderr, "wrote {}/results.jsonl and results.csv\n", render::shard_dir(out, shard));
+  if (ctx.validation_messages() > 0) {
+    fmt::print(stderr, "haze: {} Vulkan validation messages\n", ctx.validation_messages());
+    return 3;
+  }
+  if (code == 4) fmt::print(stderr, "haze: error: some runs produced NaN or Inf (see nonfinite in results.csv)\n");
+  return code;
 }
 
 }  // namespace
@@ -174,6 +242,43 @@ int main(int argc, char** argv) {
   cmp->add_option("--layer", cmp_layer, "EXR layer to compare (default: R, G, B), e.g. volume, denoised");
   cmp->add_flag("--json", cmp_json, "print JSON");
 
+  auto* ref = app.add_subcommand(
+      "reference", "render a converged reference: until the per-pixel relative standard error is below a target");
+  std::string ref_scene, ref_out, ref_frames, ref_size;
+  std::vector<std::string> ref_sets;
+  render::ReferenceOptions ro;
+  ref->add_option("scene", ref_scene, "scene JSON file")->required();
+  ref->add_option("--out", ref_out, "output directory (frame_NNNN.exr, reference.json)")->required();
+  ref->add_option("--target", ro.target, "per-pixel relative standard error to reach")
+      ->check(CLI::Range(1e-6, 10.0));
+  ref->add_option("--quantile", ro.quantile, "share of pixels that must reach it")->check(CLI::Range(0.5, 1.0));
+  ref->add_option("--min-spp", ro.min_spp, "samples before the first check")->check(CLI::Range(1, 1 << 24));
+  ref->add_option("--max-spp", ro.max_spp, "sample budget per frame")->check(CLI::Range(1, 1 << 24));
+  ref->add_option("--set", ref_sets, "override any scene value: dotted.path=value (repeatable)");
+  ref->add_option("--frames", ref_frames, "frames A:B of an animated scene; default render.frames");
+  ref->add_option("--size", ref_size, "WIDTHxHEIGHT (overrides render.width/height)");
+
+  auto* sweep = app.add_subcommand(
+      "sweep", "run a sweep file: every setting's GPU times, memory and error against a cached reference");
+  std::string sw_file, sw_out, sw_shard;
+  std::vector<std::string> sw_sets;
+  bool sw_merge = false, sw_list = false;
+  sweep->add_option("sweep", sw_file, "sweep JSON file (docs/workflow.md)")->required();
+  sweep->add_option("--out", sw_out, "output directory (results.jsonl, results.csv, runs/, references/)")
+      ->required();
+  sweep->add_option("--shard", sw_shard, "run only the runs with index % N == i, e.g. $SLURM_ARRAY_TASK_ID/N");
+  sweep->add_flag("--merge", sw_merge, "join the shard-*/ results in --out into results.jsonl and results.csv");
+  sweep->add_flag("--list", sw_list, "print the runs (of the shard) as JSON lines and exit; renders nothing");
+  sweep->add_option("--set", sw_sets, "extra fixed overrides dotted.path=value for every run (repeatable)");
+
+  auto* report = app.add_subcommand("report", "an HTML report (and PNG figures) of a sweep's results");
+  std::string rep_dir;
+  render::ReportOptions rep;
+  report->add_option("dir", rep_dir, "the sweep's --out directory")->required();
+  report->add_option("--out", rep.out, "HTML file (default DIR/report.html; figures in <name>_figures/)");
+  report->add_option("--metric", rep.metric, "error axis: relmse, smape, mse, flip_ldr, flip_hdr");
+  report->add_option("--images", rep.max_images, "image columns besides the reference")->check(CLI::Range(1, 24));
+
   auto* vdbcmd = app.add_subcommand("vdb", "make and inspect .vdb files");
   vdbcmd->require_subcommand(1);
   auto* make =
@@ -198,9 +303,11 @@ int main(int argc, char** argv) {
   info->add_flag("--json", info_json, "machine-readable output");
 
   auto* bench =
-      app.add_subcommand("bench", "rays, samples and lookups per second; pass times against a copy kernel");
+      app.add_subcommand("bench", "the benchmark suite: ratios measured in one run on one device (docs/benchmarks.md)");
   haze::bench::Options bo;
   bench->add_flag("--json", bo.json, "print JSON instead of a table");
+  bench->add_option("--only", bo.only,
+                    "run only these parts, comma-separated: first_frame, passes, bvh, svgf, guiding, volume_repr");
   bench->add_option("--size", bo.size, "image size WIDTHxHEIGHT");
   bench->add_option("--spp", bo.spp, "samples per measurement");
   bench->add_option("--denoise-sizes", bo.denoise_sizes, "sizes of the SVGF timings, WxH[,WxH...]");
@@ -255,6 +362,12 @@ int main(int argc, char** argv) {
               g.index_max.y, g.index_max.z, g.voxel_size.x, g.active_voxels, g.value_min, g.value_max,
               g.memory_bytes / 1e6);
       }
+      return 0;
+    }
+    if (*ref) return run_reference(ref_scene, ref_out, ref_frames, ref_size, ref_sets, ro, co);
+    if (*sweep) return run_sweep(sw_file, sw_out, sw_shard, sw_merge, sw_list, sw_sets, co);
+    if (*report) {
+      fmt::print("wrote {}\n", render::write_report(rep_dir, rep));
       return 0;
     }
     if (*bench) return haze::bench::run(bo, co);

@@ -51,6 +51,11 @@ uint64_t MemoryLedger::peak() const {
   return peak_;
 }
 
+void MemoryLedger::reset_peak() {
+  std::lock_guard lock(mutex_);
+  peak_ = total_;
+}
+
 nlohmann::json MemoryLedger::to_json() const {
   std::lock_guard lock(mutex_);
   nlohmann::json entries = nlohmann::json::array();

@@ -25,7 +25,8 @@ class MemoryLedger {
   uint64_t total() const;                    // sum of allocated bytes
   uint64_t total_requested() const;
   std::map<std::string, uint64_t> per_category() const;
-  uint64_t peak() const;  // peak of total()
+  uint64_t peak() const;  // peak of total() since creation or reset_peak()
+  void reset_peak();      // peak = total(): a sweep measures each run's own peak
   // {"entries":[{name,category,format,bytes,requested}], "per_category":{...}, "total":N, "peak":N}
   nlohmann::json to_json() const;
 

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <filesystem>
 
+#include "render/flip.hpp"
 #include "render/metrics.hpp"
 #include "render/output.hpp"
 
@@ -87,9 +88,41 @@ std::vector<std::string> exr_files(const std::string& dir) {
   return files;
 }
 
+// The metrics of one pair (image_metrics) and, when maps is given, the per-pixel FLIP maps (HDR, LDR).
+nlohmann::json metrics_of(const Channels& test, const Channels& ref, int width, int height,
+                          std::pair<std::vector<float>, std::vector<float>>* maps) {
+  nlohmann::json j = compare(test, ref).to_json();
+  if (!flip_supports(ref.count)) {
+    j["flip_ldr"] = nullptr;
+    j["flip_hdr"] = nullptr;
+    return j;
+  }
+  FlipOptions o;
+  o.want_map = maps != nullptr;
+  FlipResult ldr = flip_ldr(test, ref, width, height, o), hdr = flip_hdr(test, ref, width, height, o);
+  j["flip_ldr"] = ldr.mean;
+  j["flip_hdr"] = hdr.mean;
+  if (maps) *maps = {std::move(hdr.map), std::move(ldr.map)};
+  return j;
+}
+
+// PATH.exr with flip_hdr.Y and flip_ldr.Y, PATH.png with the HDR-FLIP map through magma.
+nlohmann::json write_flip_maps(const std::string& base, int width, int height,
+                               const std::pair<std::vector<float>, std::vector<float>>& maps) {
+  const std::string exr = base + ".exr", png = base + ".png";
+  write_exr_channels(exr, width, height, {{"flip_hdr.Y", &maps.first}, {"flip_ldr.Y", &maps.second}});
+  write_png_rgba8(png, width, height, magma_rgba8(maps.first));
+  return {{"exr", exr}, {"png", png}};
+}
+
 }  // namespace
 
-nlohmann::json compare_paths(const std::string& ref, const std::string& test, const std::string& layer) {
+nlohmann::json image_metrics(const Channels& test, const Channels& ref, int width, int height) {
+  return metrics_of(test, ref, width, height, nullptr);
+}
+
+nlohmann::json compare_paths(const std::string& ref, const std::string& test, const std::string& layer,
+                             const std::string& flip_map) {
   for (const auto& p : {ref, test})
     if (!fs::exists(p)) throw Error(fmt::format("cannot open {}: no such file or folder", p));
   const bool seq = fs::is_directory(ref);
@@ -101,28 +134,60 @@ nlohmann::json compare_paths(const std::string& ref, const std::string& test, co
   if (refs.size() != tests.size())
     throw Error(fmt::format("{} has {} frames, {} has {}; sequences must have as many frames", test,
                             tests.size(), ref, refs.size()));
+  // --flip-map PATH: a folder for sequences; for one image PATH.exr and PATH.png (an .exr or .png
+  // ending given with PATH is dropped).
+  std::string map_base = flip_map;
+  if (!flip_map.empty()) {
+    fs::path p(flip_map);
+    if (!seq && (p.extension() == ".exr" || p.extension() == ".png"))
+      map_base = p.replace_extension().string();
+    ensure_writable_dir(seq ? flip_map
+                        : fs::path(map_base).parent_path().empty()
+                            ? std::string(".")
+                            : fs::path(map_base).parent_path().string());
+  }
   std::vector<LayerImage> r, t;
   nlohmann::json frames = nlohmann::json::array();
-  Metrics sum;
+  double sum_relmse = 0, sum_smape = 0, sum_mse = 0, sum_flip_ldr = 0, sum_flip_hdr = 0;
+  bool has_flip = true;
   for (size_t f = 0; f < refs.size(); ++f) {
     r.push_back(load_layer(refs[f], layer, nullptr));
     t.push_back(load_layer(tests[f], layer, &r.back().channels));
-    if (t.back().width != r.back().width || t.back().height != r.back().height)
-      throw Error(fmt::format("{} is {}x{}, {} is {}x{}; compare images of one size", tests[f],
-                              t.back().width, t.back().height, refs[f], r.back().width, r.back().height));
-    Metrics m = compare(t.back().view(), r.back().view());
-    frames.push_back({{"reference", refs[f]}, {"test", tests[f]}, {"metrics", m.to_json()}});
-    sum.relmse += m.relmse;
-    sum.smape += m.smape;
-    sum.mse += m.mse;
+    const LayerImage &rf = r.back(), &tf = t.back();
+    if (tf.width != rf.width || tf.height != rf.height)
+      throw Error(fmt::format("{} is {}x{}, {} is {}x{}; compare images of one size", tests[f], tf.width,
+                              tf.height, refs[f], rf.width, rf.height));
+    has_flip = flip_supports(uint32_t(rf.channels.size()));
+    if (!flip_map.empty() && !has_flip)
+      throw Error(fmt::format("{}: --flip-map needs a layer of 1 or 3 channels, {} has {}", refs[f],
+                              layer.empty() ? "the base layer" : "layer " + layer, rf.channels.size()));
+    std::pair<std::vector<float>, std::vector<float>> maps;
+    nlohmann::json m =
+        metrics_of(tf.view(), rf.view(), rf.width, rf.height, flip_map.empty() ? nullptr : &maps);
+    nlohmann::json frame = {{"reference", refs[f]}, {"test", tests[f]}, {"metrics", m}};
+    if (!flip_map.empty())
+      frame["flip_map"] =
+          write_flip_maps(seq ? (fs::path(flip_map) / fs::path(tests[f]).stem()).string() : map_base,
+                          rf.width, rf.height, maps);
+    frames.push_back(frame);
+    sum_relmse += m["relmse"].get<double>();
+    sum_smape += m["smape"].get<double>();
+    sum_mse += m["mse"].get<double>();
+    if (has_flip) {
+      sum_flip_ldr += m["flip_ldr"].get<double>();
+      sum_flip_hdr += m["flip_hdr"].get<double>();
+    }
   }
   const double n = double(refs.size());
-  Metrics mean{sum.relmse / n, sum.smape / n, sum.mse / n, psnr(sum.mse / n)};
+  Metrics mean{sum_relmse / n, sum_smape / n, sum_mse / n, psnr(sum_mse / n)};
+  nlohmann::json mean_json = mean.to_json();
+  mean_json["flip_ldr"] = has_flip ? nlohmann::json(sum_flip_ldr / n) : nlohmann::json(nullptr);
+  mean_json["flip_hdr"] = has_flip ? nlohmann::json(sum_flip_hdr / n) : nlohmann::json(nullptr);
   nlohmann::json j = {{"layer", layer},
                       {"channels", r.front().channels},
                       {"size", {r.front().width, r.front().height}},
                       {"frames", frames},
-                      {"mean", mean.to_json()}};
+                      {"mean", mean_json}};
   if (seq && refs.size() > 1) {
     std::vector<Channels> tv, rv;
     for (size_t f = 0; f < refs.size(); ++f) {
@@ -139,14 +204,21 @@ std::string format_comparison(const nlohmann::json& j) {
     return v.is_string() ? v.get<std::string>() : fmt::format("{:.6g}", v.get<double>());
   };
   auto line = [&](const nlohmann::json& m) {
-    return fmt::format("relMSE {}  SMAPE {}  MSE {}  PSNR {} dB", num(m["relmse"]), num(m["smape"]),
-                       num(m["mse"]), num(m["psnr"]));
+    std::string s = fmt::format("relMSE {}  SMAPE {}  MSE {}  PSNR {} dB", num(m["relmse"]), num(m["smape"]),
+                                num(m["mse"]), num(m["psnr"]));
+    if (m.contains("flip_ldr") && !m["flip_ldr"].is_null())
+      s += fmt::format("  FLIP LDR {} HDR {}", num(m["flip_ldr"]), num(m["flip_hdr"]));
+    return s;
   };
   std::string s;
   const auto& frames = j["frames"];
   if (frames.size() > 1)
     for (const auto& f : frames)
       s += fmt::format("{}: {}\n", f["test"].get<std::string>(), line(f["metrics"]));
+  for (const auto& f : frames)
+    if (f.contains("flip_map"))
+      s += fmt::format("FLIP maps: {} {}\n", f["flip_map"]["exr"].get<std::string>(),
+                       f["flip_map"]["png"].get<std::string>());
   s += fmt::format(
       "{}{} ({}, {}x{})\n", frames.size() > 1 ? "mean: " : "", line(j["mean"]),
       j["layer"].get<std::string>().empty() ? "R, G, B" : "layer " + j["layer"].get<std::string>(),

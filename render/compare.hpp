@@ -1,16 +1,27 @@
-// `haze compare`: error metrics of a test image against a reference, or of a test sequence against a
-// reference sequence (folders of EXR frames, matched in name order) with the temporal-stability measure.
+// `haze compare`: error metrics (relMSE, SMAPE, MSE, PSNR, FLIP) of a test image against a reference, or of a
+// test sequence against a reference sequence (folders of EXR frames, matched in name order) with the
+// temporal-stability measure.
 #pragma once
 
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "render/metrics.hpp"
+
 namespace haze::render {
+
+// relMSE, SMAPE, MSE, PSNR, FLIP LDR and HDR of test against ref: the one place both `haze compare` and
+// sweeps compute them. Keys relmse, smape, mse, psnr ("inf" when identical), flip_ldr, flip_hdr (null for
+// a 2-channel layer, where FLIP has no meaning). LDR-FLIP sees the linear values clamped to [0, 1].
+nlohmann::json image_metrics(const Channels& test, const Channels& ref, int width, int height);
 
 // ref and test: both .exr files or both folders. layer: "" for R, G, B; else the channels "<layer>.*".
 // Throws a one-line Error naming the file and what to do for a missing file, layer or frame, a size
-// mismatch or non-finite values.
-nlohmann::json compare_paths(const std::string& ref, const std::string& test, const std::string& layer);
+// mismatch or non-finite values. flip_map: if not empty, the per-pixel FLIP maps are written there: for
+// two images PATH.exr (channels flip_hdr.Y, flip_ldr.Y) and PATH.png (HDR-FLIP through magma); for two
+// folders the folder PATH with <frame>.exr and <frame>.png per frame.
+nlohmann::json compare_paths(const std::string& ref, const std::string& test, const std::string& layer,
+                             const std::string& flip_map = "");
 
 // One line per image (or frame) and the means, for the terminal.
 std::string format_comparison(const nlohmann::json& j);

@@ -168,14 +168,16 @@ void write_png(const std::string& path, const Image& img) {
   write_png_rgba8(path, img.width, img.height, img.ldr);
 }
 
-void write_json(const std::string& path, const nlohmann::json& j) {
+void write_text(const std::string& path, const std::string& text) {
   atomic_write(path, [&](const std::string& tmp) {
-    std::ofstream f(tmp);
-    f << j.dump(2) << "\n";
+    std::ofstream f(tmp, std::ios::binary);
+    f << text;
     f.close();
     if (!f) throw std::runtime_error("write failed");
   });
 }
+
+void write_json(const std::string& path, const nlohmann::json& j) { write_text(path, j.dump(2) + "\n"); }
 
 void ensure_writable_dir(const std::string& dir) {
   std::error_code ec;

@@ -31,6 +31,7 @@ void write_exr_channels(const std::string& path, int width, int height,
                         const std::vector<std::pair<std::string, const std::vector<float>*>>& channels);
 void write_png_rgba8(const std::string& path, int width, int height, const std::vector<uint32_t>& rgba);
 void write_json(const std::string& path, const nlohmann::json& j);
+void write_text(const std::string& path, const std::string& text);
 
 // Creates dir if needed and checks that a file can be created in it; throws a one-line Error otherwise.
 void ensure_writable_dir(const std::string& dir);

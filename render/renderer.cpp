@@ -240,6 +240,15 @@ void Renderer::set_scene(const scene::Scene& s, uint32_t frame, const scene::Sce
       features_.guiding ? pipeline(fmt::format("{}/guiding/guide_reproject.comp.0.spv", dir), 4, 0) : nullptr;
 }
 
+void Renderer::restart(const scene::Scene& s, uint32_t frame, const scene::Scene* prev) {
+  svgf_surface_.reset();
+  svgf_volume_.reset();
+  has_frame_ = false;
+  passes_.clear();
+  pipeline_ms_ = 0;
+  set_scene(s, frame, prev);
+}
+
 void Renderer::keep_svgf(std::unique_ptr<denoise::Svgf>& svgf, const char* name, bool wanted,
                          const denoise::SvgfParams& params, bool remodulate) {
   const auto& r = scene_.render;

@@ -71,6 +71,9 @@ class Renderer {
   // Switches to another (static) scene, e.g. the next animation frame, and clears the accumulation.
   // Pipelines, buffers of unchanged size and grids of unchanged media are kept.
   void set_scene(const scene::Scene& s, uint32_t frame, const scene::Scene* prev = nullptr);
+  // Starts an independent render of `s` (a sweep's next run): as set_scene, but every history (denoisers,
+  // guide, virtual points), the pass statistics and the pipeline time start afresh. Pipelines are kept.
+  void restart(const scene::Scene& s, uint32_t frame, const scene::Scene* prev = nullptr);
 
   // One dispatch per sample; progress(done, total) after each.
   void add_samples(int n, const std::function<void(int, int)>& progress = {});

@@ -1,0 +1,253 @@
+#include "render/reference.hpp"
+
+#include <fcntl.h>
+#include <fmt/format.h>
+#include <sys/file.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+
+#include "render/output.hpp"
+#include "scene/animation.hpp"
+
+namespace haze::render {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace {
+
+// Holds an flock on `path` for the scope: shards of one sweep must not render the same reference twice.
+class FileLock {
+ public:
+  explicit FileLock(const std::string& path) {
+    fd_ = ::open(path.c_str(), O_RDWR | O_CREAT, 0644);
+    if (fd_ < 0) throw Error(fmt::format("cannot create lock file {}; choose a writable --out", path));
+    ::flock(fd_, LOCK_EX);
+  }
+  ~FileLock() {
+    ::flock(fd_, LOCK_UN);
+    ::close(fd_);
+  }
+  FileLock(const FileLock&) = delete;
+  FileLock& operator=(const FileLock&) = delete;
+
+ private:
+  int fd_ = -1;
+};
+
+std::string file_hash(const std::string& path) {
+  std::ifstream f(path, std::ios::binary);
+  if (!f) throw Error(fmt::format("cannot read {} for the reference key; check that it exists", path));
+  uint64_t h = 1469598103934665603ull;
+  std::vector<char> buf(1 << 20);
+  while (f) {
+    f.read(buf.data(), std::streamsize(buf.size()));
+    for (std::streamsize i = 0; i < f.gcount(); ++i) {
+      h ^= uint8_t(buf[size_t(i)]);
+      h *= 1099511628211ull;
+    }
+  }
+  return fmt::format("{:016x}", h);
+}
+
+}  // namespace
+
+std::string hash_key(std::string_view bytes) {
+  uint64_t h = 1469598103934665603ull;  // FNV-1a 64
+  for (char c : bytes) {
+    h ^= uint8_t(c);
+    h *= 1099511628211ull;
+  }
+  return fmt::format("{:016x}", h);
+}
+
+json ReferenceOptions::to_json() const {
+  return {{"target", target}, {"quantile", quantile}, {"min_spp", min_spp}, {"max_spp", max_spp}};
+}
+
+ReferenceOptions reference_options_from_json(const json& j, const std::string& origin) {
+  ReferenceOptions o;
+  if (!j.is_object()) throw Error(fmt::format("{}: expected an object {{\"target\": 0.01, ...}}", origin));
+  for (const auto& [k, v] : j.items()) {
+    const std::string key = fmt::format("{}.{}", origin, k);
+    auto number = [&](double lo, double hi) {
+      if (!v.is_number() || !(v.get<double>() >= lo && v.get<double>() <= hi))
+        throw Error(fmt::format("{}: expected a number in [{}, {}], got {}", key, lo, hi, v.dump()));
+      return v.get<double>();
+    };
+    auto count = [&]() {
+      if (!v.is_number_integer() || v.get<int64_t>() < 1 || v.get<int64_t>() > (1 << 24))
+        throw Error(fmt::format("{}: expected a whole number in [1, {}], got {}", key, 1 << 24, v.dump()));
+      return int(v.get<int64_t>());
+    };
+    if (k == "target")
+      o.target = number(1e-6, 10);
+    else if (k == "quantile")
+      o.quantile = number(0.5, 1);
+    else if (k == "min_spp")
+      o.min_spp = count();
+    else if (k == "max_spp")
+      o.max_spp = count();
+    else
+      throw Error(fmt::format("{}: unknown key; the keys are target, quantile, min_spp, max_spp", key));
+  }
+  if (o.min_spp > o.max_spp)
+    throw Error(fmt::format("{}: min_spp {} is above max_spp {}; lower min_spp", origin, o.min_spp, o.max_spp));
+  return o;
+}
+
+scene::Scene reference_scene(const scene::Scene& s) {
+  scene::Scene r = s;
+  r.guiding.enabled = false;
+  r.denoise.surface.enabled = false;
+  r.denoise.volume.enabled = false;
+  r.render.outputs = {"exr"};
+  r.render.seed = kReferenceSeed;
+  return r;
+}
+
+json reference_identity(const scene::Scene& s, const ReferenceOptions& o) {
+  json j = scene::to_json(s);
+  j.erase("guiding");
+  j.erase("denoise");
+  for (const char* k : {"spp", "seed", "volume_samples", "majorant_resolution", "equiangular_probability",
+                        "rr_threshold", "outputs", "exposure", "tonemap", "frames"})
+    j["render"].erase(k);
+  // Files by content, so that the key is the same wherever the scene and its files are copied to. A
+  // sequence's files are checked per frame instead (frame_inputs), so a longer range extends the reference.
+  auto contents = [&](const char* list, size_t i, const char* field) {
+    json& entry = j[list][i];
+    if (!entry.contains(field) || !entry[field].is_string() || entry[field].get<std::string>().empty()) return;
+    const std::string pattern = entry[field].get<std::string>();
+    entry[field] = scene::is_sequence(pattern) ? json{{"sequence", fs::path(pattern).filename().string()}}
+                                               : json{{"content", file_hash(pattern)}};
+  };
+  for (size_t i = 0; i < s.media.size(); ++i) contents("media", i, "file");
+  for (size_t i = 0; i < s.surfaces.size(); ++i) {
+    contents("surfaces", i, "file");
+    contents("surfaces", i, "albedo_texture");
+  }
+  return {{"scene", j}, {"options", o.to_json()}, {"version", 1}};
+}
+
+std::string reference_key(const scene::Scene& s, const ReferenceOptions& o) {
+  return hash_key(reference_identity(s, o).dump());
+}
+
+std::string frame_inputs(const scene::Scene& s, int frame) {
+  std::string all;
+  for (const auto& m : s.media)
+    if (scene::is_sequence(m.file)) all += file_hash(scene::frame_file(m.file, frame));
+  return hash_key(all);
+}
+
+std::string reference_frame_path(const std::string& dir, int frame) {
+  return (fs::path(dir) / fmt::format("frame_{:04d}.exr", frame)).string();
+}
+
+json ReferenceFrame::to_json() const {
+  return {{"frame", frame},          {"spp", spp},
+          {"error_quantile", error_quantile}, {"error_max", error_max},
+          {"converged", converged},  {"seconds", seconds}};
+}
+
+std::vector<float> relative_standard_errors(const Image& img) {
+  const size_t pixels = size_t(img.width) * img.height;
+  std::vector<float> e(pixels, 0.f);
+  const double n = std::max(img.samples, 1);
+  for (size_t p = 0; p < pixels; ++p) {
+    double worst = 0;
+    for (uint32_t c = 0; c < 3; ++c) {
+      const double mean = img.data[p * glsl::OUT_STRIDE + glsl::OUT_L + c];
+      const double var = img.data[p * glsl::OUT_STRIDE + glsl::OUT_VAR + c];
+      worst = std::max(worst, std::sqrt(var / n / (mean * mean + 0.01)));
+    }
+    e[p] = std::isfinite(worst) ? float(worst) : INFINITY;
+  }
+  return e;
+}
+
+json make_reference(gpu::Context& ctx, const scene::Scene& s_in, int first, int last, const std::string& dir,
+                    const ReferenceOptions& o, const ReferenceHooks& hooks, std::unique_ptr<Renderer>& r) {
+  using clock = std::chrono::steady_clock;
+  const scene::Scene s = reference_scene(s_in);
+  ensure_writable_dir(dir);
+  FileLock lock((fs::path(dir) / ".lock").string());
+  const std::string key = reference_key(s, o);
+  const std::string info_path = (fs::path(dir) / "reference.json").string();
+  json info = {{"key", key}, {"identity", reference_identity(s, o)}, {"frames", json::object()}};
+  if (fs::exists(info_path)) {
+    json old;
+    try {
+      std::ifstream f(info_path);
+      old = json::parse(f);
+    } catch (const std::exception&) {
+      throw Error(fmt::format("{}: not a reference.json (bad JSON); delete it or choose another --out", info_path));
+    }
+    if (old.value("key", "") != key)
+      throw Error(fmt::format(
+          "{} holds the reference of another scene or settings (key {}, this one is {}); choose another --out",
+          dir, old.value("key", "?"), key));
+    info["frames"] = old.value("frames", json::object());
+  }
+  bool fresh = true;
+  for (int f = first; f <= last; ++f) {
+    const std::string fkey = std::to_string(f);
+    const std::string inputs = frame_inputs(s, f);
+    if (info["frames"].contains(fkey) && info["frames"][fkey].value("inputs", "") == inputs &&
+        fs::exists(reference_frame_path(dir, f))) {
+      if (hooks.on_frame) {
+        ReferenceFrame rf;
+        rf.frame = f;
+        rf.spp = info["frames"][fkey].value("spp", 0);
+        rf.error_quantile = info["frames"][fkey].value("error_quantile", 0.0);
+        rf.error_max = info["frames"][fkey].value("error_max", 0.0);
+        rf.converged = info["frames"][fkey].value("converged", false);
+        hooks.on_frame(rf, true);
+      }
+      continue;
+    }
+    auto t0 = clock::now();
+    scene::Scene fs_ = scene::scene_at_frame(s, f);
+    scene::Scene prev = scene::scene_at_frame(s, f - 1);
+    if (!r)
+      r = std::make_unique<Renderer>(ctx, fs_, uint32_t(f), &prev);
+    else if (fresh)
+      r->restart(fs_, uint32_t(f), &prev);
+    else
+      r->set_scene(fs_, uint32_t(f), &prev);
+    fresh = false;
+    ReferenceFrame rf;
+    rf.frame = f;
+    Image img;
+    int next = std::min(o.min_spp, o.max_spp);
+    for (;;) {
+      r->add_samples(next - r->samples());
+      img = r->resolve();
+      std::vector<float> e = relative_standard_errors(img);
+      const size_t k = std::min(e.size(), size_t(std::max(1.0, std::ceil(o.quantile * double(e.size()))))) - 1;
+      std::nth_element(e.begin(), e.begin() + long(k), e.end());
+      rf.error_quantile = e[k];
+      rf.error_max = *std::max_element(e.begin(), e.end());
+      rf.spp = r->samples();
+      rf.converged = rf.error_quantile <= o.target;
+      rf.seconds = std::chrono::duration<double>(clock::now() - t0).count();
+      if (hooks.on_check) hooks.on_check(rf);
+      if (rf.converged || rf.spp >= o.max_spp) break;
+      next = int(std::min<int64_t>(int64_t(rf.spp) * 2, o.max_spp));
+    }
+    write_exr(reference_frame_path(dir, f), img);
+    info["frames"][fkey] = rf.to_json();
+    info["frames"][fkey]["inputs"] = inputs;
+    write_json(info_path, info);  // after each frame: a killed run keeps the frames it finished
+    if (hooks.on_frame) hooks.on_frame(rf, false);
+  }
+  return info;
+}
+
+}  // namespace haze::render

@@ -1,0 +1,66 @@
+#include "render/run.hpp"
+
+#include <algorithm>
+#include <chrono>
+
+#include "scene/animation.hpp"
+
+namespace haze::render {
+
+double total_gpu_ms(const Renderer& r) {
+  double ms = 0;
+  for (const auto& [name, st] : r.pass_stats())
+    for (double t : st.ms) ms += t;
+  return ms;
+}
+
+RunSummary render_frames(gpu::Context& ctx, const scene::Scene& s, int first, int last, const FrameLoop& loop,
+                         std::unique_ptr<Renderer>& r) {
+  using clock = std::chrono::steady_clock;
+  RunSummary out;
+  bool fresh = true;
+  for (int f = first; f <= last; ++f) {
+    auto t0 = clock::now();
+    scene::Scene fs = scene::scene_at_frame(s, f);
+    scene::Scene prev = scene::scene_at_frame(s, f - 1);  // for motion vectors
+    if (!r)
+      r = std::make_unique<Renderer>(ctx, fs, uint32_t(f), &prev);
+    else if (fresh)
+      r->restart(fs, uint32_t(f), &prev);
+    else
+      r->set_scene(fs, uint32_t(f), &prev);
+    fresh = false;
+    for (const auto& n : r->notes())
+      if (std::find(out.notes.begin(), out.notes.end(), n) == out.notes.end()) {
+        if (loop.on_note) loop.on_note(n);
+        out.notes.push_back(n);
+      }
+    auto t1 = clock::now();
+    if (loop.on_frame_start) loop.on_frame_start(f, first, last);
+    const double gpu_before = total_gpu_ms(*r);
+    const auto& passes = r->pass_stats();
+    size_t trace_before = passes.count("trace") ? passes.at("trace").ms.size() : 0;
+    r->add_samples(fs.render.spp, loop.progress);
+    Image img = r->resolve();
+    auto t2 = clock::now();
+    if (loop.on_frame) loop.on_frame(f, img);
+    const auto& trace = r->pass_stats().at("trace").ms;
+    double trace_ms = 0;
+    for (size_t i = trace_before; i < trace.size(); ++i) trace_ms += trace[i];
+    const double gpu_ms = total_gpu_ms(*r) - gpu_before;
+    double fsetup = std::chrono::duration<double>(t1 - t0).count();
+    double frender = std::chrono::duration<double>(t2 - t1).count();
+    out.setup_s += fsetup;
+    out.render_s += frender;
+    out.gpu_ms += gpu_ms;
+    out.per_frame.push_back({{"frame", f},
+                             {"setup_s", fsetup},
+                             {"render_s", frender},
+                             {"gpu_ms", gpu_ms},
+                             {"trace_gpu_ms", trace_ms}});
+  }
+  out.stats = r->stats();
+  return out;
+}
+
+}  // namespace haze::render

@@ -1,0 +1,37 @@
+// Rendering a scene's frames with one Renderer: the loop `haze render`, `haze reference` and sweeps share.
+#pragma once
+
+#include <functional>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "render/renderer.hpp"
+
+namespace haze::render {
+
+struct FrameLoop {
+  std::function<void(int frame, const Image&)> on_frame;  // after each frame's resolve
+  std::function<void(int done, int total)> progress;      // after each sample
+  std::function<void(const std::string&)> on_note;        // each distinct note of the renderer, once
+  std::function<void(int frame, int first, int last)> on_frame_start;
+};
+
+struct RunSummary {
+  nlohmann::json per_frame = nlohmann::json::array();  // {frame, setup_s, render_s, gpu_ms, trace_gpu_ms}
+  std::vector<std::string> notes;
+  double setup_s = 0, render_s = 0;
+  double gpu_ms = 0;    // every pass's GPU time over all frames
+  nlohmann::json stats;  // Renderer::stats() after the last frame: passes, memory, features
+};
+
+// Renders frames [first, last] of `s` (each through scene_at_frame, with the previous frame for motion).
+// `r` is reused when it holds a Renderer (restarted: its pipelines are kept, nothing else), else made.
+RunSummary render_frames(gpu::Context& ctx, const scene::Scene& s, int first, int last, const FrameLoop& loop,
+                         std::unique_ptr<Renderer>& r);
+
+// Sum of every pass's recorded GPU times.
+double total_gpu_ms(const Renderer& r);
+
+}  // namespace haze::render
