@@ -110,10 +110,11 @@ int run_render(const std::string& scene_path, const std::string& out, int spp, c
 }
 
 int run_reference(const std::string& scene_path, const std::string& out, const std::string& frames,
-                  const std::string& size, const std::vector<std::string>& sets, const render::ReferenceOptions& o,
-                  const gpu::ContextOptions& co) {
+                  const std::string& size, const std::vector<std::string>& sets,
+                  const render::ReferenceOptions& o, const gpu::ContextOptions& co) {
   if (o.min_spp > o.max_spp)
-    throw std::runtime_error(fmt::format("--min-spp {} is above --max-spp {}; lower it", o.min_spp, o.max_spp));
+    throw std::runtime_error(
+        fmt::format("--min-spp {} is above --max-spp {}; lower it", o.min_spp, o.max_spp));
   std::vector<std::string> overrides = sets;
   size_overrides(size, overrides);
   if (!frames.empty()) {
@@ -127,13 +128,15 @@ int run_reference(const std::string& scene_path, const std::string& out, const s
   fmt::print(stderr, "device: {} ({})\n", ctx.device_name(), ctx.driver_info());
   render::ReferenceHooks hooks;
   hooks.on_check = [&](const render::ReferenceFrame& f) {
-    fmt::print(stderr, "frame {}: {} spp, error {:.4g} at quantile {} (max {:.4g}), target {}\n", f.frame, f.spp,
-               f.error_quantile, o.quantile, f.error_max, o.target);
+    fmt::print(stderr, "frame {}: {} spp, error {:.4g} at quantile {} (max {:.4g}), target {}\n", f.frame,
+               f.spp, f.error_quantile, o.quantile, f.error_max, o.target);
   };
   hooks.on_frame = [&](const render::ReferenceFrame& f, bool cached) {
-    if (cached) fmt::print(stderr, "frame {}: up to date ({} spp)\n", f.frame, f.spp);
+    if (cached)
+      fmt::print(stderr, "frame {}: up to date ({} spp)\n", f.frame, f.spp);
     else if (!f.converged)
-      fmt::print(stderr, "frame {}: sample budget {} spent before the target; raise --max-spp\n", f.frame, f.spp);
+      fmt::print(stderr, "frame {}: sample budget {} spent before the target; raise --max-spp\n", f.frame,
+                 f.spp);
   };
   std::unique_ptr<render::Renderer> r;
   nlohmann::json info = render::make_reference(ctx, s, first, last, out, o, hooks, r);
@@ -188,7 +191,8 @@ int run_sweep(const std::string& file, const std::string& out, const std::string
     fmt::print(stderr, "haze: {} Vulkan validation messages\n", ctx.validation_messages());
     return 3;
   }
-  if (code == 4) fmt::print(stderr, "haze: error: some runs produced NaN or Inf (see nonfinite in results.csv)\n");
+  if (code == 4)
+    fmt::print(stderr, "haze: error: some runs produced NaN or Inf (see nonfinite in results.csv)\n");
   return code;
 }
 
@@ -233,17 +237,21 @@ int main(int argc, char** argv) {
 
   auto* cmp = app.add_subcommand(
       "compare",
-      "relMSE, SMAPE, MSE, PSNR of TEST against REF (two .exr files, or two folders of frames with "
-      "the temporal-stability measure)");
-  std::string cmp_ref, cmp_test, cmp_layer;
+      "relMSE, SMAPE, MSE, PSNR, FLIP (LDR and HDR) of TEST against REF (two .exr files, or two folders "
+      "of frames with the temporal-stability measure)");
+  std::string cmp_ref, cmp_test, cmp_layer, cmp_flip_map;
   bool cmp_json = false;
   cmp->add_option("reference", cmp_ref, "reference .exr or folder of frames")->required();
   cmp->add_option("test", cmp_test, "test .exr or folder of frames")->required();
   cmp->add_option("--layer", cmp_layer, "EXR layer to compare (default: R, G, B), e.g. volume, denoised");
   cmp->add_flag("--json", cmp_json, "print JSON");
+  cmp->add_option("--flip-map", cmp_flip_map,
+                  "write the per-pixel FLIP maps: PATH.exr (flip_hdr.Y, flip_ldr.Y) and PATH.png (HDR-FLIP, "
+                  "magma); for folders one pair per frame in the folder PATH");
 
   auto* ref = app.add_subcommand(
-      "reference", "render a converged reference: until the per-pixel relative standard error is below a target");
+      "reference",
+      "render a converged reference: until the per-pixel relative standard error is below a target");
   std::string ref_scene, ref_out, ref_frames, ref_size;
   std::vector<std::string> ref_sets;
   render::ReferenceOptions ro;
@@ -251,7 +259,8 @@ int main(int argc, char** argv) {
   ref->add_option("--out", ref_out, "output directory (frame_NNNN.exr, reference.json)")->required();
   ref->add_option("--target", ro.target, "per-pixel relative standard error to reach")
       ->check(CLI::Range(1e-6, 10.0));
-  ref->add_option("--quantile", ro.quantile, "share of pixels that must reach it")->check(CLI::Range(0.5, 1.0));
+  ref->add_option("--quantile", ro.quantile, "share of pixels that must reach it")
+      ->check(CLI::Range(0.5, 1.0));
   ref->add_option("--min-spp", ro.min_spp, "samples before the first check")->check(CLI::Range(1, 1 << 24));
   ref->add_option("--max-spp", ro.max_spp, "sample budget per frame")->check(CLI::Range(1, 1 << 24));
   ref->add_option("--set", ref_sets, "override any scene value: dotted.path=value (repeatable)");
@@ -266,8 +275,10 @@ int main(int argc, char** argv) {
   sweep->add_option("sweep", sw_file, "sweep JSON file (docs/workflow.md)")->required();
   sweep->add_option("--out", sw_out, "output directory (results.jsonl, results.csv, runs/, references/)")
       ->required();
-  sweep->add_option("--shard", sw_shard, "run only the runs with index % N == i, e.g. $SLURM_ARRAY_TASK_ID/N");
-  sweep->add_flag("--merge", sw_merge, "join the shard-*/ results in --out into results.jsonl and results.csv");
+  sweep->add_option("--shard", sw_shard,
+                    "run only the runs with index % N == i, e.g. $SLURM_ARRAY_TASK_ID/N");
+  sweep->add_flag("--merge", sw_merge,
+                  "join the shard-*/ results in --out into results.jsonl and results.csv");
   sweep->add_flag("--list", sw_list, "print the runs (of the shard) as JSON lines and exit; renders nothing");
   sweep->add_option("--set", sw_sets, "extra fixed overrides dotted.path=value for every run (repeatable)");
 
@@ -277,7 +288,8 @@ int main(int argc, char** argv) {
   report->add_option("dir", rep_dir, "the sweep's --out directory")->required();
   report->add_option("--out", rep.out, "HTML file (default DIR/report.html; figures in <name>_figures/)");
   report->add_option("--metric", rep.metric, "error axis: relmse, smape, mse, flip_ldr, flip_hdr");
-  report->add_option("--images", rep.max_images, "image columns besides the reference")->check(CLI::Range(1, 24));
+  report->add_option("--images", rep.max_images, "image columns besides the reference")
+      ->check(CLI::Range(1, 24));
 
   auto* vdbcmd = app.add_subcommand("vdb", "make and inspect .vdb files");
   vdbcmd->require_subcommand(1);
@@ -302,12 +314,13 @@ int main(int argc, char** argv) {
   info->add_option("file", info_file, ".vdb file")->required();
   info->add_flag("--json", info_json, "machine-readable output");
 
-  auto* bench =
-      app.add_subcommand("bench", "the benchmark suite: ratios measured in one run on one device (docs/benchmarks.md)");
+  auto* bench = app.add_subcommand(
+      "bench", "the benchmark suite: ratios measured in one run on one device (docs/benchmarks.md)");
   haze::bench::Options bo;
   bench->add_flag("--json", bo.json, "print JSON instead of a table");
-  bench->add_option("--only", bo.only,
-                    "run only these parts, comma-separated: first_frame, passes, bvh, svgf, guiding, volume_repr");
+  bench->add_option(
+      "--only", bo.only,
+      "run only these parts, comma-separated: first_frame, passes, bvh, svgf, guiding, volume_repr");
   bench->add_option("--size", bo.size, "image size WIDTHxHEIGHT");
   bench->add_option("--spp", bo.spp, "samples per measurement");
   bench->add_option("--denoise-sizes", bo.denoise_sizes, "sizes of the SVGF timings, WxH[,WxH...]");
@@ -372,7 +385,7 @@ int main(int argc, char** argv) {
     }
     if (*bench) return haze::bench::run(bo, co);
     if (*cmp) {
-      nlohmann::json j = render::compare_paths(cmp_ref, cmp_test, cmp_layer);
+      nlohmann::json j = render::compare_paths(cmp_ref, cmp_test, cmp_layer, cmp_flip_map);
       fmt::print("{}", cmp_json ? j.dump(2) + "\n" : render::format_comparison(j));
       return 0;
     }

@@ -177,7 +177,9 @@ void write_text(const std::string& path, const std::string& text) {
   });
 }
 
-void write_json(const std::string& path, const nlohmann::json& j) { write_text(path, j.dump(2) + "\n"); }
+void write_json(const std::string& path, const nlohmann::json& j) {
+  write_text(path, j.dump(2) + "\n");
+}
 
 void ensure_writable_dir(const std::string& dir) {
   std::error_code ec;

@@ -97,7 +97,8 @@ ReferenceOptions reference_options_from_json(const json& j, const std::string& o
       throw Error(fmt::format("{}: unknown key; the keys are target, quantile, min_spp, max_spp", key));
   }
   if (o.min_spp > o.max_spp)
-    throw Error(fmt::format("{}: min_spp {} is above max_spp {}; lower min_spp", origin, o.min_spp, o.max_spp));
+    throw Error(
+        fmt::format("{}: min_spp {} is above max_spp {}; lower min_spp", origin, o.min_spp, o.max_spp));
   return o;
 }
 
@@ -122,7 +123,8 @@ json reference_identity(const scene::Scene& s, const ReferenceOptions& o) {
   // sequence's files are checked per frame instead (frame_inputs), so a longer range extends the reference.
   auto contents = [&](const char* list, size_t i, const char* field) {
     json& entry = j[list][i];
-    if (!entry.contains(field) || !entry[field].is_string() || entry[field].get<std::string>().empty()) return;
+    if (!entry.contains(field) || !entry[field].is_string() || entry[field].get<std::string>().empty())
+      return;
     const std::string pattern = entry[field].get<std::string>();
     entry[field] = scene::is_sequence(pattern) ? json{{"sequence", fs::path(pattern).filename().string()}}
                                                : json{{"content", file_hash(pattern)}};
@@ -151,9 +153,12 @@ std::string reference_frame_path(const std::string& dir, int frame) {
 }
 
 json ReferenceFrame::to_json() const {
-  return {{"frame", frame},          {"spp", spp},
-          {"error_quantile", error_quantile}, {"error_max", error_max},
-          {"converged", converged},  {"seconds", seconds}};
+  return {{"frame", frame},
+          {"spp", spp},
+          {"error_quantile", error_quantile},
+          {"error_max", error_max},
+          {"converged", converged},
+          {"seconds", seconds}};
 }
 
 std::vector<float> relative_standard_errors(const Image& img) {
@@ -187,12 +192,14 @@ json make_reference(gpu::Context& ctx, const scene::Scene& s_in, int first, int 
       std::ifstream f(info_path);
       old = json::parse(f);
     } catch (const std::exception&) {
-      throw Error(fmt::format("{}: not a reference.json (bad JSON); delete it or choose another --out", info_path));
+      throw Error(
+          fmt::format("{}: not a reference.json (bad JSON); delete it or choose another --out", info_path));
     }
     if (old.value("key", "") != key)
-      throw Error(fmt::format(
-          "{} holds the reference of another scene or settings (key {}, this one is {}); choose another --out",
-          dir, old.value("key", "?"), key));
+      throw Error(
+          fmt::format("{} holds the reference of another scene or settings (key {}, this one is {}); choose "
+                      "another --out",
+                      dir, old.value("key", "?"), key));
     info["frames"] = old.value("frames", json::object());
   }
   bool fresh = true;
@@ -230,7 +237,8 @@ json make_reference(gpu::Context& ctx, const scene::Scene& s_in, int first, int 
       r->add_samples(next - r->samples());
       img = r->resolve();
       std::vector<float> e = relative_standard_errors(img);
-      const size_t k = std::min(e.size(), size_t(std::max(1.0, std::ceil(o.quantile * double(e.size()))))) - 1;
+      const size_t k =
+          std::min(e.size(), size_t(std::max(1.0, std::ceil(o.quantile * double(e.size()))))) - 1;
       std::nth_element(e.begin(), e.begin() + long(k), e.end());
       rf.error_quantile = e[k];
       rf.error_max = *std::max_element(e.begin(), e.end());

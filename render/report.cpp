@@ -65,7 +65,9 @@ std::string read_file(const std::string& path) {
   return std::string((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
 }
 
-std::string value_text(const json& v) { return v.is_string() ? v.get<std::string>() : v.dump(); }
+std::string value_text(const json& v) {
+  return v.is_string() ? v.get<std::string>() : v.dump();
+}
 
 // "a.b.c=1, d=2" and a short form with each path's last part.
 std::pair<std::string, std::string> labels(const json& settings) {
@@ -73,7 +75,8 @@ std::pair<std::string, std::string> labels(const json& settings) {
   for (const auto& [k, v] : settings.items()) {
     full += (full.empty() ? "" : ", ") + k + "=" + value_text(v);
     size_t dot = k.rfind('.');
-    brief += (brief.empty() ? "" : " ") + (dot == std::string::npos ? k : k.substr(dot + 1)) + "=" + value_text(v);
+    brief +=
+        (brief.empty() ? "" : " ") + (dot == std::string::npos ? k : k.substr(dot + 1)) + "=" + value_text(v);
   }
   if (full.empty()) full = brief = "base scene";
   return {full, brief};
@@ -94,16 +97,18 @@ json report_data(const std::string& dir, const ReportOptions& o) {
     std::error_code ec;
     for (const auto& e : fs::directory_iterator(d, ec))
       shards |= e.path().filename().string().rfind("shard-", 0) == 0;
-    throw Error(shards ? fmt::format("{}: only shard results; join them with `haze sweep SWEEP.json --out {} "
-                                     "--merge` first",
-                                     dir, dir)
-                       : fmt::format("{}: no results.jsonl; run `haze sweep SWEEP.json --out {}` first", dir, dir));
+    throw Error(
+        shards ? fmt::format("{}: only shard results; join them with `haze sweep SWEEP.json --out {} "
+                             "--merge` first",
+                             dir, dir)
+               : fmt::format("{}: no results.jsonl; run `haze sweep SWEEP.json --out {}` first", dir, dir));
   }
   static const std::set<std::string> metrics = {"relmse", "smape", "mse", "flip_ldr", "flip_hdr"};
   if (!metrics.count(o.metric))
     throw Error(fmt::format("--metric {}: not one of relmse, smape, mse, flip_ldr, flip_hdr", o.metric));
   std::vector<json> rows = read_results((d / "results.jsonl").string());
-  if (rows.empty()) throw Error(fmt::format("{}: results.jsonl has no runs yet; let the sweep finish a run", dir));
+  if (rows.empty())
+    throw Error(fmt::format("{}: results.jsonl has no runs yet; let the sweep finish a run", dir));
   json spec = json::object();
   if (std::ifstream f(d / "sweep.json"); f) spec = json::parse(f, nullptr, false);
   if (spec.is_discarded()) spec = json::object();
@@ -208,8 +213,8 @@ std::vector<float> exr_rgb(const std::string& path, const std::string& layer, in
 
 // The image grid's inputs: previews and per-pixel relMSE maps of the chosen groups' first runs, and the
 // crop window where their error concentrates.
-json prepare_images(const json& data, const std::vector<json>& rows, const std::string& dir, const fs::path& fig,
-                    const ReportOptions& o) {
+json prepare_images(const json& data, const std::vector<json>& rows, const std::string& dir,
+                    const fs::path& fig, const ReportOptions& o) {
   std::map<std::string, const json*> by_id;
   for (const auto& r : rows) by_id[r["run"].get<std::string>()] = &r;
   // Pareto groups by time first, then the rest by error: the most informative columns.
@@ -220,9 +225,8 @@ json prepare_images(const json& data, const std::vector<json>& rows, const std::
   std::vector<const json*> rest;
   for (const auto& g : data["groups"])
     if (!g["pareto"].get<bool>()) rest.push_back(&g);
-  std::stable_sort(rest.begin(), rest.end(), [](auto a, auto b) {
-    return a->value("error", INFINITY) < b->value("error", INFINITY);
-  });
+  std::stable_sort(rest.begin(), rest.end(),
+                   [](auto a, auto b) { return a->value("error", INFINITY) < b->value("error", INFINITY); });
   pick.insert(pick.end(), rest.begin(), rest.end());
   const std::string layer = data["sweep"].value("layer", "");
   json cols = json::array();
@@ -249,7 +253,8 @@ json prepare_images(const json& data, const std::vector<json>& rows, const std::
     if (row.contains("reference")) {
       const std::string frame = row["frames"].get<std::string>();
       const int last = std::stoi(frame.substr(frame.find(':') + 1));
-      const std::string rp = reference_frame_path((fs::path(dir) / row["reference"].get<std::string>()).string(), last);
+      const std::string rp =
+          reference_frame_path((fs::path(dir) / row["reference"].get<std::string>()).string(), last);
       int rw = 0, rh = 0;
       std::vector<float> r = exr_rgb(rp, "", rw, rh);
       if (ref_path.empty()) {
@@ -330,8 +335,9 @@ std::string write_report(const std::string& dir, const ReportOptions& o) {
   if (!py) throw Error("cannot start python3 for the report's plots; run scripts/setup.sh");
   std::fputs(kReportPy, py);
   if (::pclose(py) != 0)
-    throw Error("the report's plotting script failed (python3 with matplotlib and numpy; run scripts/setup.sh), "
-                "see its message above");
+    throw Error(
+        "the report's plotting script failed (python3 with matplotlib and numpy; run scripts/setup.sh), "
+        "see its message above");
   json made = json::parse(read_file((fig / "made.json").string()), nullptr, false);
   if (made.is_discarded()) throw Error("the report's plotting script printed no figure list");
 
@@ -340,43 +346,52 @@ std::string write_report(const std::string& dir, const ReportOptions& o) {
   h += "<script>window.hazeErrors=0;window.addEventListener('error',function(){"
        "document.documentElement.setAttribute('data-script-errors',++window.hazeErrors);});</script>\n";
   h += "<title>haze sweep report</title>\n<style>body{font-family:sans-serif;margin:2em;max-width:1200px}"
-       "table{border-collapse:collapse;font-size:12px}td,th{border:1px solid #ccc;padding:3px 6px;text-align:right}"
+       "table{border-collapse:collapse;font-size:12px}td,th{border:1px solid #ccc;padding:3px "
+       "6px;text-align:right}"
        "th{cursor:pointer;background:#f3f3f3}td.l{text-align:left}tr.front{background:#fff3e0}"
        "img.plot{max-width:100%;display:block;margin:1em 0}.bad{color:#b00}figure{margin:0}"
        "figcaption{font-size:12px;color:#555}</style></head><body>\n";
   const json& sw = data["sweep"];
-  h += fmt::format("<h1>haze sweep report</h1>\n<p>{} runs in {} settings on {}. Sweep of <code>{}</code>{}.</p>\n",
-                   data["runs"].get<size_t>(), data["groups"].size(), html_escape(data["device"].get<std::string>()),
-                   html_escape(sw.value("scene", "?")),
-                   sw.value("description", "").empty() ? "" : ": " + html_escape(sw.value("description", "")));
+  h += fmt::format(
+      "<h1>haze sweep report</h1>\n<p>{} runs in {} settings on {}. Sweep of <code>{}</code>{}.</p>\n",
+      data["runs"].get<size_t>(), data["groups"].size(), html_escape(data["device"].get<std::string>()),
+      html_escape(sw.value("scene", "?")),
+      sw.value("description", "").empty() ? "" : ": " + html_escape(sw.value("description", "")));
   if (sw.contains("reference") && sw["reference"].is_object())
-    h += fmt::format("<p>Errors against a reference rendered until {}% of the pixels have a relative standard "
-                     "error below {} (at most {} spp), compared on layer <code>{}</code>. Time is the GPU time "
-                     "of all passes per frame (timestamps), averaged over seeds.</p>\n",
-                     sw["reference"]["quantile"].get<double>() * 100, fmt_number(sw["reference"]["target"]),
-                     sw["reference"]["max_spp"].get<int>(),
-                     sw.value("layer", "").empty() ? "R, G, B" : html_escape(sw.value("layer", "")));
+    h += fmt::format(
+        "<p>Errors against a reference rendered until {}% of the pixels have a relative standard "
+        "error below {} (at most {} spp), compared on layer <code>{}</code>. Time is the GPU time "
+        "of all passes per frame (timestamps), averaged over seeds.</p>\n",
+        sw["reference"]["quantile"].get<double>() * 100, fmt_number(sw["reference"]["target"]),
+        sw["reference"]["max_spp"].get<int>(),
+        sw.value("layer", "").empty() ? "R, G, B" : html_escape(sw.value("layer", "")));
   auto figure = [&](const std::string& name, const std::string& caption) {
     if (std::find(made.begin(), made.end(), name) == made.end()) return;
-    h += fmt::format("<figure><img class=\"plot\" alt=\"{}\" src=\"data:image/png;base64,{}\">"
-                     "<figcaption>{}</figcaption></figure>\n",
-                     name, base64(read_file((fig / name).string())), caption);
+    h += fmt::format(
+        "<figure><img class=\"plot\" alt=\"{}\" src=\"data:image/png;base64,{}\">"
+        "<figcaption>{}</figcaption></figure>\n",
+        name, base64(read_file((fig / name).string())), caption);
   };
   figure("pareto.png",
          "Error against GPU time per frame, one point per setting (mean over seeds, bars: &plusmn;1 sd); the "
          "Pareto front (no setting is both faster and more accurate) is outlined and joined.");
   // The table: every setting, sortable by a click on its header.
-  h += "<h2>Settings</h2>\n<table id=\"groups\"><thead><tr><th>setting</th><th>runs</th><th>GPU ms/frame</th>";
+  h +=
+      "<h2>Settings</h2>\n<table id=\"groups\"><thead><tr><th>setting</th><th>runs</th><th>GPU ms/frame</th>";
   const std::vector<std::string> ms = {"relmse", "smape", "mse", "psnr", "flip_ldr", "flip_hdr"};
   for (const auto& m : ms) h += "<th>" + m + "</th>";
-  h += "<th>sd of " + o.metric + "</th><th>memory MB</th><th>NaN/Inf</th><th>Pareto</th></tr></thead><tbody>\n";
+  h += "<th>sd of " + o.metric +
+       "</th><th>memory MB</th><th>NaN/Inf</th><th>Pareto</th></tr></thead><tbody>\n";
   for (const auto& g : data["groups"]) {
-    h += fmt::format("<tr{}><td class=\"l\">{}</td><td>{}</td><td>{}</td>", g["pareto"].get<bool>() ? " class=\"front\"" : "",
-                     html_escape(g["label"].get<std::string>()), g["runs"].get<size_t>(), fmt_number(g["time"]));
+    h += fmt::format("<tr{}><td class=\"l\">{}</td><td>{}</td><td>{}</td>",
+                     g["pareto"].get<bool>() ? " class=\"front\"" : "",
+                     html_escape(g["label"].get<std::string>()), g["runs"].get<size_t>(),
+                     fmt_number(g["time"]));
     for (const auto& m : ms) h += "<td>" + fmt_number(g["metrics"].value(m, json())) + "</td>";
-    h += fmt::format("<td>{}</td><td>{}</td><td{}>{}</td><td>{}</td></tr>\n", fmt_number(g.value("error_sd", json())),
-                     fmt_number(g["memory_mb"]), g["nonfinite"].get<size_t>() ? " class=\"bad\"" : "",
-                     g["nonfinite"].get<size_t>(), g["pareto"].get<bool>() ? "&#9733;" : "");
+    h += fmt::format("<td>{}</td><td>{}</td><td{}>{}</td><td>{}</td></tr>\n",
+                     fmt_number(g.value("error_sd", json())), fmt_number(g["memory_mb"]),
+                     g["nonfinite"].get<size_t>() ? " class=\"bad\"" : "", g["nonfinite"].get<size_t>(),
+                     g["pareto"].get<bool>() ? "&#9733;" : "");
   }
   h += "</tbody></table>\n";
   h += "<h2>Time per pass</h2>\n";
@@ -385,21 +400,25 @@ std::string write_report(const std::string& dir, const ReportOptions& o) {
   figure("memory.png", "Device memory by ledger category, live at the last frame, mean over seeds.");
   if (data.contains("images")) {
     h += "<h2>Images</h2>\n";
-    figure("images.png",
-           "Last frame of the first seed of the Pareto settings (fastest first), then the others by error: "
-           "tonemapped (ACES, 0 EV), the crop where the error is largest (yellow box), and the per-pixel relMSE "
-           "(log scale).");
+    figure(
+        "images.png",
+        "Last frame of the first seed of the Pareto settings (fastest first), then the others by error: "
+        "tonemapped (ACES, 0 EV), the crop where the error is largest (yellow box), and the per-pixel relMSE "
+        "(log scale).");
   }
-  h += "<script>\n"
-       "window.addEventListener('load',function(){var im=document.querySelectorAll('img.plot'),ok=0;"
-       "im.forEach(function(i){if(i.complete&&i.naturalWidth>0)ok++;});"
-       "document.body.setAttribute('data-plots-loaded',ok+'/'+im.length);});\n"
-       "document.querySelectorAll('#groups th').forEach(function(th,c){th.addEventListener('click',function(){"
-       "var tb=document.querySelector('#groups tbody'),rs=Array.from(tb.rows),asc=th.dataset.asc!=='1';"
-       "th.dataset.asc=asc?'1':'0';rs.sort(function(a,b){var x=a.cells[c].textContent,y=b.cells[c].textContent,"
-       "nx=parseFloat(x),ny=parseFloat(y);var r=isNaN(nx)||isNaN(ny)?x.localeCompare(y):nx-ny;return asc?r:-r;});"
-       "rs.forEach(function(r){tb.appendChild(r);});});});\n"
-       "</script>\n</body></html>\n";
+  h +=
+      "<script>\n"
+      "window.addEventListener('load',function(){var im=document.querySelectorAll('img.plot'),ok=0;"
+      "im.forEach(function(i){if(i.complete&&i.naturalWidth>0)ok++;});"
+      "document.body.setAttribute('data-plots-loaded',ok+'/'+im.length);});\n"
+      "document.querySelectorAll('#groups th').forEach(function(th,c){th.addEventListener('click',function(){"
+      "var tb=document.querySelector('#groups tbody'),rs=Array.from(tb.rows),asc=th.dataset.asc!=='1';"
+      "th.dataset.asc=asc?'1':'0';rs.sort(function(a,b){var "
+      "x=a.cells[c].textContent,y=b.cells[c].textContent,"
+      "nx=parseFloat(x),ny=parseFloat(y);var r=isNaN(nx)||isNaN(ny)?x.localeCompare(y):nx-ny;return "
+      "asc?r:-r;});"
+      "rs.forEach(function(r){tb.appendChild(r);});});});\n"
+      "</script>\n</body></html>\n";
   write_text(html_path, h);
   return html_path;
 }

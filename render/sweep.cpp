@@ -26,8 +26,9 @@ using nlohmann::json;
 
 namespace {
 
-const char* const kKeys = "scene, set, axes, combine, seeds, frames, reference, layer, require_finite, save_images, "
-                          "description";
+const char* const kKeys =
+    "scene, set, axes, combine, seeds, frames, reference, layer, require_finite, save_images, "
+    "description";
 
 // A scene error about an override reads "(in --set path=v)"; in a sweep the override came from the file.
 std::string from_sweep(std::string msg) {
@@ -38,7 +39,9 @@ std::string from_sweep(std::string msg) {
   return msg;
 }
 
-std::string assignment(const std::string& path, const json& value) { return path + "=" + value.dump(); }
+std::string assignment(const std::string& path, const json& value) {
+  return path + "=" + value.dump();
+}
 
 // The axes' values of one run: axis index -> value index (absent axes stay at base).
 using Pick = std::vector<std::pair<size_t, size_t>>;
@@ -65,11 +68,13 @@ SweepSpec load_sweep(const std::string& path, const std::vector<std::string>& cl
   // The key list above is a comma-separated string: check whole words.
   for (const auto& [k, v] : j.items()) {
     std::string list = std::string(", ") + kKeys + ",";
-    if (list.find(", " + k + ",") == std::string::npos) fail(k, fmt::format("unknown key; the keys are {}", kKeys));
+    if (list.find(", " + k + ",") == std::string::npos)
+      fail(k, fmt::format("unknown key; the keys are {}", kKeys));
   }
 
   if (!j.contains("scene") || !j["scene"].is_string() || j["scene"].get<std::string>().empty())
-    fail("scene", "expected the base scene's path (relative to the sweep file), e.g. \"scene\": \"demo.json\"");
+    fail("scene",
+         "expected the base scene's path (relative to the sweep file), e.g. \"scene\": \"demo.json\"");
   fs::path scene = j["scene"].get<std::string>();
   if (scene.is_relative()) scene = fs::absolute(path).parent_path() / scene;
   sp.scene = scene.lexically_normal().string();
@@ -97,9 +102,11 @@ SweepSpec load_sweep(const std::string& path, const std::vector<std::string>& cl
           fail(key + ".path", "expected a dotted path string, e.g. \"render.spp\"");
         ax.paths = {a["path"].get<std::string>()};
       } else {
-        if (!a["paths"].is_array() || a["paths"].empty()) fail(key + ".paths", "expected a non-empty array of paths");
+        if (!a["paths"].is_array() || a["paths"].empty())
+          fail(key + ".paths", "expected a non-empty array of paths");
         for (const auto& p : a["paths"]) {
-          if (!p.is_string() || p.get<std::string>().empty()) fail(key + ".paths", "expected dotted path strings");
+          if (!p.is_string() || p.get<std::string>().empty())
+            fail(key + ".paths", "expected dotted path strings");
           ax.paths.push_back(p.get<std::string>());
         }
       }
@@ -167,7 +174,8 @@ SweepSpec load_sweep(const std::string& path, const std::vector<std::string>& cl
     sp.layer = j["layer"].get<std::string>();
     bool known = false;
     for (const auto& l : exr_layers()) known |= l.name == sp.layer && l.channels.size() == 3;
-    if (!known) fail("layer", fmt::format("\"{}\" is not an RGB layer haze writes (see README's layers)", sp.layer));
+    if (!known)
+      fail("layer", fmt::format("\"{}\" is not an RGB layer haze writes (see README's layers)", sp.layer));
   }
   if (j.contains("require_finite")) {
     if (!j["require_finite"].is_boolean()) fail("require_finite", "expected true or false");
@@ -244,7 +252,8 @@ std::vector<Run> expand(const SweepSpec& spec) {
         r.overrides.push_back(assignment("render.seed", *seed));
       }
       if (!spec.frames.empty()) r.overrides.push_back("render.frames=" + spec.frames);
-      r.id = hash_key(json{{"overrides", r.overrides}, {"scene", fs::path(spec.scene).filename().string()}}.dump());
+      r.id = hash_key(
+          json{{"overrides", r.overrides}, {"scene", fs::path(spec.scene).filename().string()}}.dump());
       runs.push_back(std::move(r));
     }
   return runs;
@@ -261,8 +270,9 @@ void check_runs(const SweepSpec& spec, const std::vector<Run>& runs) {
     for (size_t v = 0; v < spec.axes[a].values.size(); ++v) {
       std::vector<std::string> o = spec.set;
       for (size_t k = 0; k < spec.axes[a].paths.size(); ++k)
-        o.push_back(assignment(spec.axes[a].paths[k], spec.axes[a].paths.size() > 1 ? spec.axes[a].values[v][k]
-                                                                                   : spec.axes[a].values[v]));
+        o.push_back(assignment(spec.axes[a].paths[k], spec.axes[a].paths.size() > 1
+                                                          ? spec.axes[a].values[v][k]
+                                                          : spec.axes[a].values[v]));
       try {
         scene::load(spec.scene, o);
       } catch (const std::exception& e) {
@@ -273,7 +283,8 @@ void check_runs(const SweepSpec& spec, const std::vector<Run>& runs) {
     try {
       scene::load(spec.scene, r.overrides);
     } catch (const std::exception& e) {
-      throw Error(fmt::format("{}: run {} {}: {}", spec.file, r.index, r.settings.dump(), from_sweep(e.what())));
+      throw Error(
+          fmt::format("{}: run {} {}: {}", spec.file, r.index, r.settings.dump(), from_sweep(e.what())));
     }
   }
 }
@@ -283,8 +294,8 @@ Shard parse_shard(const std::string& text) {
   char slash = 0, extra = 0;
   if (std::sscanf(text.c_str(), "%d%c%d%c", &s.index, &slash, &s.count, &extra) != 3 || slash != '/' ||
       s.count < 1 || s.index < 0 || s.index >= s.count)
-    throw Error(fmt::format("--shard {}: expected i/N with 0 <= i < N, e.g. 0/4 (Slurm: $SLURM_ARRAY_TASK_ID/N)",
-                            text));
+    throw Error(fmt::format(
+        "--shard {}: expected i/N with 0 <= i < N, e.g. 0/4 (Slurm: $SLURM_ARRAY_TASK_ID/N)", text));
   return s;
 }
 
@@ -323,7 +334,8 @@ std::vector<json> read_results(const std::string& path) {
       torn = true;  // the run in flight when the sweep was killed: it runs again
       continue;
     }
-    if (last) torn = true;  // a row without its newline was cut short after its JSON: keep it, finish the line
+    if (last)
+      torn = true;  // a row without its newline was cut short after its JSON: keep it, finish the line
     rows.push_back(row);
     kept += line + "\n";
   }
@@ -354,7 +366,8 @@ std::string results_csv(const std::vector<json>& rows) {
       for (const auto& [k, v] : r["temporal"].items()) put(i, "temporal_" + k, v);
     put(i, "nonfinite", r.value("nonfinite", json()));
     for (const auto& [k, v] : r["passes"].items()) put(i, "pass_" + k + "_ms", v["ms_per_frame"]);
-    for (const auto& [k, v] : r["memory"]["per_category"].items()) put(i, "mem_" + k + "_mb", v.get<double>() / 1e6);
+    for (const auto& [k, v] : r["memory"]["per_category"].items())
+      put(i, "mem_" + k + "_mb", v.get<double>() / 1e6);
   }
   auto quote = [](const std::string& s) {
     if (s.find_first_of(",\"\n") == std::string::npos) return s;
@@ -375,6 +388,17 @@ std::string results_csv(const std::vector<json>& rows) {
   return out;
 }
 
+size_t count_nonfinite(const Image& img) {
+  size_t n = 0;
+  const size_t pixels = size_t(img.width) * img.height;
+  for (const Layer& l : exr_layers()) {
+    if (!l.present(img)) continue;
+    for (size_t p = 0; p < pixels; ++p)
+      for (size_t c = 0; c < l.channels.size(); ++c) n += !std::isfinite(l.value(img, p, int(c)));
+  }
+  return n;
+}
+
 namespace {
 
 // Appends one line with a single write and syncs it: a kill leaves the row whole or (rarely) torn, and
@@ -386,7 +410,8 @@ void append_line(const std::string& path, const std::string& line) {
   ssize_t n = ::write(fd, text.data(), text.size());
   ::fsync(fd);
   ::close(fd);
-  if (n != ssize_t(text.size())) throw Error(fmt::format("cannot append to {}: short write; disk full?", path));
+  if (n != ssize_t(text.size()))
+    throw Error(fmt::format("cannot append to {}: short write; disk full?", path));
 }
 
 // The layer's channels of `img`, planar by pixel (count floats per pixel).
@@ -394,8 +419,8 @@ std::vector<float> layer_values(const Image& img, const std::string& layer, uint
   for (const Layer& l : exr_layers()) {
     if (l.name != layer) continue;
     if (!l.present(img))
-      throw Error(fmt::format("layer \"{}\" is not written for this scene (its pass is off); choose another layer",
-                              layer));
+      throw Error(fmt::format(
+          "layer \"{}\" is not written for this scene (its pass is off); choose another layer", layer));
     count = uint32_t(l.channels.size());
     const size_t pixels = size_t(img.width) * img.height;
     std::vector<float> v(pixels * count);
@@ -404,18 +429,6 @@ std::vector<float> layer_values(const Image& img, const std::string& layer, uint
     return v;
   }
   throw Error(fmt::format("no layer \"{}\"", layer));
-}
-
-// NaN and Inf in every layer haze writes for `img`.
-size_t nonfinite(const Image& img) {
-  size_t n = 0;
-  const size_t pixels = size_t(img.width) * img.height;
-  for (const Layer& l : exr_layers()) {
-    if (!l.present(img)) continue;
-    for (size_t p = 0; p < pixels; ++p)
-      for (size_t c = 0; c < l.channels.size(); ++c) n += !std::isfinite(l.value(img, p, int(c)));
-  }
-  return n;
 }
 
 std::string relative_to(const std::string& path, const std::string& base) {
@@ -441,9 +454,10 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
     std::ifstream f(spec_path);
     json old = json::parse(f, nullptr, false);
     if (old.is_discarded() || old != spec.canonical)
-      throw Error(fmt::format("{} holds the results of a different sweep (its sweep.json differs from {}); "
-                              "choose another --out, or delete it to start over",
-                              dir, spec.file));
+      throw Error(
+          fmt::format("{} holds the results of a different sweep (its sweep.json differs from {}); "
+                      "choose another --out, or delete it to start over",
+                      dir, spec.file));
   } else {
     write_json(spec_path, spec.canonical);
   }
@@ -455,9 +469,10 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
   std::vector<Run> todo;
   for (const Run& r : runs)
     if (!done.count(r.id)) todo.push_back(r);
-  log(fmt::format("sweep {}: {} runs{}, {} finished before, {} to do", spec.file, runs.size(),
-                  shard.count > 1 ? fmt::format(" in shard {}/{} of {}", shard.index, shard.count, all.size()) : "",
-                  runs.size() - todo.size(), todo.size()));
+  log(fmt::format(
+      "sweep {}: {} runs{}, {} finished before, {} to do", spec.file, runs.size(),
+      shard.count > 1 ? fmt::format(" in shard {}/{} of {}", shard.index, shard.count, all.size()) : "",
+      runs.size() - todo.size(), todo.size()));
   if (hooks.progress) hooks.progress(0, todo.size(), nullptr);
 
   std::unique_ptr<Renderer> r;
@@ -474,7 +489,8 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
       rh.on_frame = [&](const ReferenceFrame& f, bool cached) {
         if (!cached)
           log(fmt::format("reference frame {}: {} spp, error {:.3g} at quantile {} ({})", f.frame, f.spp,
-                          f.error_quantile, spec.reference->quantile, f.converged ? "converged" : "budget spent"));
+                          f.error_quantile, spec.reference->quantile,
+                          f.converged ? "converged" : "budget spent"));
       };
       make_reference(ctx, s, first, last, ref_dir, *spec.reference, rh, r);
     }
@@ -486,7 +502,7 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
     size_t bad = 0;
     FrameLoop loop;
     loop.on_frame = [&](int f, const Image& img) {
-      bad += nonfinite(img);
+      bad += count_nonfinite(img);
       json m = {{"frame", f}};
       if (spec.reference) {
         uint32_t count = 3;
@@ -521,7 +537,8 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
                 {"nonfinite", bad},
                 {"device", ctx.device_name()}};
     row["time"] = {{"gpu_ms_per_frame", rs.gpu_ms / frames},
-                   {"trace_ms_per_frame", [&] {
+                   {"trace_ms_per_frame",
+                    [&] {
                       double t = 0;
                       for (const auto& f : rs.per_frame) t += f["trace_gpu_ms"].get<double>();
                       return t / frames;
@@ -581,10 +598,12 @@ json merge_sweep(const SweepSpec& spec, const std::string& out) {
   if (fs::exists(fs::path(out) / "results.jsonl")) sources.push_back(out);
   std::error_code ec;
   for (const auto& e : fs::directory_iterator(out, ec))
-    if (e.is_directory() && e.path().filename().string().rfind("shard-", 0) == 0) sources.push_back(e.path().string());
+    if (e.is_directory() && e.path().filename().string().rfind("shard-", 0) == 0)
+      sources.push_back(e.path().string());
   std::sort(sources.begin() + (sources.size() && sources[0] == out ? 1 : 0), sources.end());
   if (sources.empty())
-    throw Error(fmt::format("{}: no results.jsonl and no shard-*/ folders to merge; run the shards first", out));
+    throw Error(
+        fmt::format("{}: no results.jsonl and no shard-*/ folders to merge; run the shards first", out));
   std::map<size_t, json> merged;
   size_t duplicates = 0, foreign = 0;
   for (const auto& src : sources) {
@@ -592,8 +611,8 @@ json merge_sweep(const SweepSpec& spec, const std::string& out) {
     std::ifstream f(spec_path);
     json s = json::parse(f, nullptr, false);
     if (s.is_discarded() || s != spec.canonical)
-      throw Error(fmt::format("{} holds the results of a different sweep than {}; move it away and merge again",
-                              src, spec.file));
+      throw Error(fmt::format(
+          "{} holds the results of a different sweep than {}; move it away and merge again", src, spec.file));
     for (json row : read_results((fs::path(src) / "results.jsonl").string())) {
       auto it = by_id.find(row["run"].get<std::string>());
       if (it == by_id.end()) {
@@ -623,8 +642,11 @@ json merge_sweep(const SweepSpec& spec, const std::string& out) {
   write_json((fs::path(out) / "sweep.json").string(), spec.canonical);
   write_text((fs::path(out) / "results.jsonl").string(), text);
   write_text((fs::path(out) / "results.csv").string(), results_csv(rows));
-  json summary = {{"runs", all.size()}, {"merged", rows.size()}, {"duplicates", duplicates},
-                  {"foreign", foreign}, {"sources", sources.size()}};
+  json summary = {{"runs", all.size()},
+                  {"merged", rows.size()},
+                  {"duplicates", duplicates},
+                  {"foreign", foreign},
+                  {"sources", sources.size()}};
   if (rows.size() < all.size()) {
     std::string first_missing;
     for (const Run& r : all)
@@ -632,9 +654,10 @@ json merge_sweep(const SweepSpec& spec, const std::string& out) {
         first_missing = fmt::format("run {} {}", r.index, r.settings.dump());
         break;
       }
-    throw Error(fmt::format("{}: merged {} of {} runs; {} missing (first: {}); run the missing shards, then merge "
-                            "again",
-                            out, rows.size(), all.size(), all.size() - rows.size(), first_missing));
+    throw Error(
+        fmt::format("{}: merged {} of {} runs; {} missing (first: {}); run the missing shards, then merge "
+                    "again",
+                    out, rows.size(), all.size(), all.size() - rows.size(), first_missing));
   }
   return summary;
 }

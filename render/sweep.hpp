@@ -12,6 +12,7 @@
 
 #include "gpu/gpu.hpp"
 #include "render/reference.hpp"
+#include "render/renderer.hpp"
 
 namespace haze::render {
 
@@ -22,23 +23,23 @@ struct Axis {
 };
 
 struct SweepSpec {
-  std::string file;                 // the sweep file, for messages
-  std::string scene;                // the base scene, resolved against the sweep file's folder
-  std::vector<std::string> set;     // fixed "path=value" overrides, the file's "set" then --set
+  std::string file;              // the sweep file, for messages
+  std::string scene;             // the base scene, resolved against the sweep file's folder
+  std::vector<std::string> set;  // fixed "path=value" overrides, the file's "set" then --set
   std::vector<Axis> axes;
   std::string combine = "cartesian";  // cartesian | zip | each (one axis at a time, the others at base)
   std::vector<uint32_t> seeds;        // render.seed of each repetition; empty: the scene's
   std::string frames;                 // "A:B"; "": the scene's render.frames
   std::optional<ReferenceOptions> reference;  // none: no error metrics
-  std::string layer;                  // test layer compared with the reference's R, G, B ("": R, G, B)
-  bool require_finite = true;         // a run with NaN or Inf makes the sweep exit with 4
-  std::string save_images = "last";   // last | all | none: EXR frames kept per run (for the report)
-  nlohmann::json canonical;           // everything above as JSON: what identifies the sweep
+  std::string layer;                 // test layer compared with the reference's R, G, B ("": R, G, B)
+  bool require_finite = true;        // a run with NaN or Inf makes the sweep exit with 4
+  std::string save_images = "last";  // last | all | none: EXR frames kept per run (for the report)
+  nlohmann::json canonical;          // everything above as JSON: what identifies the sweep
 };
 
 struct Run {
-  size_t index = 0;    // position in the sweep's order: axes (first outermost), then seeds
-  std::string id;      // hash of overrides and frames: stable across machines and re-runs
+  size_t index = 0;  // position in the sweep's order: axes (first outermost), then seeds
+  std::string id;    // hash of overrides and frames: stable across machines and re-runs
   nlohmann::json settings = nlohmann::json::object();  // {"path": value} of the axes and render.seed
   std::vector<std::string> overrides;                  // set, axes and seed as "path=value"
 };
@@ -64,6 +65,9 @@ std::string shard_dir(const std::string& out, Shard shard);
 std::vector<nlohmann::json> read_results(const std::string& path);
 // results.csv of `rows`: one column per setting, time, memory and metric, union over the rows.
 std::string results_csv(const std::vector<nlohmann::json>& rows);
+
+// NaN and Inf among every layer haze writes for `img` (what require_finite checks).
+size_t count_nonfinite(const Image& img);
 
 struct SweepHooks {
   std::function<void(const std::string&)> log;  // one line

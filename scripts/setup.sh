@@ -18,6 +18,8 @@ PACKAGES=(
   libglm-dev libopenexr-dev libcli11-dev nlohmann-json3-dev libfmt-dev
   # tests and benchmarks
   libgtest-dev libgmock-dev libbenchmark-dev
+  # `haze report`: figures (matplotlib), and the test that opens the report in headless Chromium
+  python3-matplotlib python3-numpy chromium
 )
 
 BACKPORTS=/etc/apt/sources.list.d/haze-bookworm-backports.list
