@@ -215,14 +215,14 @@ std::string format_comparison(const nlohmann::json& j) {
   if (frames.size() > 1)
     for (const auto& f : frames)
       s += fmt::format("{}: {}\n", f["test"].get<std::string>(), line(f["metrics"]));
-  for (const auto& f : frames)
-    if (f.contains("flip_map"))
-      s += fmt::format("FLIP maps: {} {}\n", f["flip_map"]["exr"].get<std::string>(),
-                       f["flip_map"]["png"].get<std::string>());
   s += fmt::format(
       "{}{} ({}, {}x{})\n", frames.size() > 1 ? "mean: " : "", line(j["mean"]),
       j["layer"].get<std::string>().empty() ? "R, G, B" : "layer " + j["layer"].get<std::string>(),
       j["size"][0].get<int>(), j["size"][1].get<int>());
+  for (const auto& f : frames)
+    if (f.contains("flip_map"))
+      s += fmt::format("FLIP maps: {} {}\n", f["flip_map"]["exr"].get<std::string>(),
+                       f["flip_map"]["png"].get<std::string>());
   if (j.contains("temporal"))
     s += fmt::format("temporal: relMSE of the frame-to-frame change {}, change ratio test / reference {}\n",
                      num(j["temporal"]["relmse_of_change"]), num(j["temporal"]["change_ratio"]));

@@ -377,6 +377,32 @@ TEST_F(Cli, CompareImagesAndSequences) {
   auto js = nlohmann::json::parse(s.out);
   EXPECT_EQ(js["frames"].size(), 2u);
   EXPECT_NEAR(js["temporal"]["change_ratio"].get<double>(), 1.5, 1e-9);
+  for (const char* k : {"flip_ldr", "flip_hdr"}) {
+    EXPECT_GT(j["mean"][k].get<double>(), 0.0) << k;
+    EXPECT_EQ(js["frames"][0]["metrics"][k].get<double>(), 0.0) << k;  // identical first frames
+    EXPECT_GT(js["mean"][k].get<double>(), 0.0) << k;
+  }
+
+  // --flip-map: PATH.exr with flip_hdr.Y and flip_ldr.Y whose means are the reported ones, PATH.png.
+  auto m = run(fmt::format("compare {} {} --layer volume --json --flip-map {}", ref, test,
+                           (dir / "maps/flip").string()));
+  ASSERT_EQ(m.code, 0) << m.out;
+  auto jm = nlohmann::json::parse(m.out);
+  auto map = haze::render::read_exr((dir / "maps/flip.exr").string());
+  ASSERT_EQ(map.width, 2);
+  ASSERT_EQ(map.height, 1);
+  for (const char* k : {"flip_ldr", "flip_hdr"}) {
+    const auto& v = map.channel(std::string(k) + ".Y");
+    EXPECT_NEAR((v[0] + v[1]) / 2, jm["mean"][k].get<double>(), 1e-6) << k;
+  }
+  EXPECT_TRUE(fs::exists(dir / "maps/flip.png"));
+  auto ms = run(fmt::format("compare {} {} --layer volume --flip-map {}", (dir / "rs").string(),
+                            (dir / "ts").string(), (dir / "seqmaps").string()));
+  ASSERT_EQ(ms.code, 0) << ms.out;
+  EXPECT_NE(ms.out.find("FLIP LDR"), std::string::npos) << ms.out;
+  for (const char* f : {"f0.exr", "f0.png", "f1.exr", "f1.png"}) {
+    EXPECT_TRUE(fs::exists(dir / "seqmaps" / f)) << f;
+  }
 
   expect_one_line_error(run(fmt::format("compare {} {}", ref, (dir / "none.exr").string())), "none.exr");
   expect_one_line_error(run(fmt::format("compare {} {} --layer denoised", ref, test)), "--layer");
