@@ -81,7 +81,8 @@ def image_grid(d, path):
     cols = im["columns"]
     x0, y0, cw, ch = im["crop"]
     n = len(cols)
-    fig, axes = plt.subplots(3, n, figsize=(2.6 * n, 7.2), squeeze=False)
+    row_h = 2.6 * im["height"] / im["width"] + 0.45  # panels keep the image's aspect; 0.45 for titles
+    fig, axes = plt.subplots(3, n, figsize=(2.6 * n, 3 * row_h), squeeze=False)
     errs = [np.fromfile(c["error"], dtype="<f4").reshape(im["height"], im["width"]) for c in cols if c.get("error")]
     pos = np.concatenate([e[e > 0].ravel() for e in errs]) if errs else np.array([])
     lo = max(np.percentile(pos, 1), 1e-8) if pos.size else 1e-4
