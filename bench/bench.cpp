@@ -6,10 +6,15 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <functional>
 #include <map>
+#include <set>
+#include <sstream>
 
+#include "bench/bench_util.hpp"
 #include "bench/guiding_bench.hpp"
+#include "bench/volume_repr_bench.hpp"
 #include "denoise/svgf.hpp"
 #include "render/renderer.hpp"
 #include "scene/scene.hpp"
@@ -36,41 +41,43 @@ nlohmann::json bench_scene(int w, int h, int spp) {
                                            w, h, spp));
 }
 
-// Median GPU time of `reps` submissions of `record`, after one warm-up (lavapipe compiles on the first
-// dispatch).
-double timed_median(gpu::Context& ctx, int reps, const std::function<void(VkCommandBuffer)>& record) {
-  gpu::Timer timer(ctx, 4);
-  std::vector<double> ms;
-  for (int i = 0; i < reps + 1; ++i) {
-    ctx.submit_and_wait([&](VkCommandBuffer cmd) {
-      timer.reset(cmd);
-      timer.begin(cmd, "bench");
-      record(cmd);
-      timer.end(cmd);
-    });
-    double t = timer.read_ms().at(0).second;
-    if (i > 0) ms.push_back(t);
+// The yardstick: a copy kernel over `floats` floats (vec4 granularity), recorded between the submissions of
+// the pass it is compared with, so that both see the same state of a shared, drifting machine.
+class CopyKernel {
+ public:
+  CopyKernel(gpu::Context& ctx, size_t floats)
+      : count_(uint32_t((floats + 3) / 4)),
+        src_(ctx, "bench copy source", "benchmark", uint64_t(count_) * 16, "RGBA32F"),
+        dst_(ctx, "bench copy destination", "benchmark", uint64_t(count_) * 16, "RGBA32F"),
+        pipeline_(ctx, render::spv_dir() + "/bench/copy.comp.0.spv", 2, 4) {
+    src_.fill_zero();
   }
-  return render::median(ms);
-}
+  void record(VkCommandBuffer cmd) const {
+    pipeline_.dispatch(cmd, {&src_, &dst_}, &count_, gpu::div_up(count_, 64));
+  }
 
-// Median time of `reps` copies of `floats` floats (vec4 granularity).
-double copy_ms(gpu::Context& ctx, size_t floats, int reps) {
-  size_t vec4s = (floats + 3) / 4;
-  gpu::Buffer src(ctx, "bench copy source", "benchmark", vec4s * 16, "RGBA32F");
-  gpu::Buffer dst(ctx, "bench copy destination", "benchmark", vec4s * 16, "RGBA32F");
-  src.fill_zero();
-  gpu::ComputePipeline copy(ctx, render::spv_dir() + "/bench/copy.comp.0.spv", 2, 4);
-  uint32_t count = uint32_t(vec4s);
-  return timed_median(ctx, reps, [&](VkCommandBuffer cmd) {
-    copy.dispatch(cmd, {&src, &dst}, &count, (count + 63) / 64);
+ private:
+  uint32_t count_;
+  gpu::Buffer src_, dst_;
+  gpu::ComputePipeline pipeline_;
+};
+
+// GPU time of one submission of `record`.
+double time_once(gpu::Context& ctx, gpu::Timer& timer, const Record& record) {
+  ctx.submit_and_wait([&](VkCommandBuffer cmd) {
+    timer.reset(cmd);
+    timer.begin(cmd, "bench");
+    record(cmd);
+    timer.end(cmd);
   });
+  return timer.read_ms().at(0).second;
 }
 
 // Median per-pass GPU times (ms) of the surface SVGF instance over `reps` frames of a synthetic input:
-// a tilted plane with 1-spp-like noise and a slow pan, after two warm-up frames.
+// a tilted plane with 1-spp-like noise and a slow pan, after two warm-up frames; "copy": the copy kernel,
+// recorded after each frame's passes in the same submission.
 std::map<std::string, double> bench_svgf(gpu::Context& ctx, uint32_t W, uint32_t H, const std::string& kernel,
-                                         int reps) {
+                                         int reps, const CopyKernel& copy) {
   const size_t pixels = size_t(W) * H;
   std::vector<float> colour(pixels * 3), g(pixels * glsl::G_STRIDE, 0.f);
   uint32_t rng = 1;
@@ -101,6 +108,10 @@ std::map<std::string, double> bench_svgf(gpu::Context& ctx, uint32_t W, uint32_t
     ctx.submit_and_wait([&](VkCommandBuffer cmd) {
       timer.reset(cmd);
       svgf.run(cmd, &timer, {&in, 3, 0, &gb, &gb, &gb, glsl::G_STRIDE, glsl::G_MOTION});
+      gpu::compute_barrier(cmd);
+      timer.begin(cmd, "svgf.bench.copy");
+      copy.record(cmd);
+      timer.end(cmd);
     });
     auto t = timer.read_ms();
     if (i < 2) continue;
@@ -108,12 +119,12 @@ std::map<std::string, double> bench_svgf(gpu::Context& ctx, uint32_t W, uint32_t
   }
   std::map<std::string, double> out;
   double total = 0;
-  for (auto& [pass, v] : ms) total += out[pass] = render::median(v);
+  for (auto& [pass, v] : ms)
+    if (pass != "copy") total += out[pass] = render::median(v);
   out["total"] = total;
+  out["copy"] = render::median(ms.at("copy"));
   return out;
 }
-
-}  // namespace
 
 // BVH rays per second on the GPU and through Embree's CPU intersector (all threads): the same random rays
 // over a slatted window, a sphere, a perforated panel and a floor.
@@ -167,26 +178,92 @@ BvhFigures bench_bvh(gpu::Context& ctx) {
   return f;
 }
 
-int run(const Options& o, const gpu::ContextOptions& co) {
-  int w = 0, h = 0;
-  if (std::sscanf(o.size.c_str(), "%dx%d", &w, &h) != 2 || w < 1 || h < 1)
-    throw std::runtime_error(fmt::format("--size {}: expected WIDTHxHEIGHT", o.size));
-  gpu::Context ctx(co);
-  scene::Scene s = scene::from_json(bench_scene(w, h, o.spp), "bench scene", "");
-  render::Renderer r(ctx, s);
-  r.add_samples(1);  // warm-up: first-dispatch compile
-  size_t warm = r.pass_stats().at("trace").ms.size();
-  r.add_samples(o.spp);
-  std::vector<double> trace_ms(r.pass_stats().at("trace").ms.begin() + warm,
-                               r.pass_stats().at("trace").ms.end());
-  r.resolve();
-  r.resolve();
-  const auto& res = r.pass_stats().at("resolve").ms;
-  double t_trace = render::median(trace_ms), t_resolve = res.back();
-  size_t pixels = size_t(w) * h;
-  double t_copy = copy_ms(ctx, pixels * glsl::ACC_STRIDE, std::max(o.spp, 3));
+using nlohmann::json;
 
-  // Density lookups per second through the tracker's own sample_medium.
+std::vector<std::string> split(const std::string& s, char sep) {
+  std::vector<std::string> out;
+  std::stringstream in(s);
+  for (std::string item; std::getline(in, item, sep);) {
+    item.erase(0, item.find_first_not_of(" \t"));
+    item.erase(item.find_last_not_of(" \t") + 1);
+    out.push_back(item);
+  }
+  return out;
+}
+
+std::pair<int, int> parse_size(const std::string& s, const std::string& what) {
+  int w = 0, h = 0;
+  char x = 0;
+  if (std::sscanf(s.c_str(), "%d%c%d", &w, &x, &h) != 3 || (x != 'x' && x != 'X') || w < 1 || h < 1)
+    throw std::runtime_error(fmt::format("{} {}: expected WIDTHxHEIGHT, e.g. 320x180", what, s));
+  return {w, h};
+}
+
+double ms_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// Wall time (steady clock) from constructing a Renderer for the bench scene to its first resolve(), split
+// into pipeline creation and the rest, against the median of steady-state frames of the same spp on that
+// renderer.
+json bench_first_frame(gpu::Context& ctx, const scene::Scene& s) {
+  const int spp = s.render.spp;
+  const auto t0 = std::chrono::steady_clock::now();
+  render::Renderer r(ctx, s);
+  const double construct = ms_since(t0);
+  r.add_samples(spp);
+  r.resolve();
+  const double first = ms_since(t0);
+  const double pipelines = r.pipeline_ms();
+  std::vector<double> steady;
+  for (int i = 0; i < 3; ++i) {
+    const auto t = std::chrono::steady_clock::now();
+    r.add_samples(spp);
+    r.resolve();
+    steady.push_back(ms_since(t));
+  }
+  const double st = render::median(steady);
+  const char* cache = std::getenv("MESA_SHADER_CACHE_DIR");
+  return {{"spp", spp},
+          {"first_frame_ms", first},
+          {"construction_ms", construct},
+          {"pipeline_creation_ms", pipelines},
+          {"rest_ms", first - pipelines},
+          {"steady_frame_ms", st},
+          {"steady_frames", steady},
+          {"first_over_steady", first / st},
+          {"pipeline_share_of_first_frame", pipelines / first},
+          {"mesa_shader_cache", "unknown (warm or cold: not detected)"},
+          {"mesa_shader_cache_dir", cache ? cache : ""}};
+}
+
+// The tracker's passes against a copy of the accumulation buffer, throughput figures, and density lookups
+// through the tracker's own sample_medium. Writes the keys at the top level of `j` (kept from earlier
+// versions of the bench for scripts).
+void bench_passes(gpu::Context& ctx, const scene::Scene& s, int w, int h, int spp, json& j) {
+  render::Renderer r(ctx, s);
+  const size_t pixels = size_t(w) * h;
+  CopyKernel copy(ctx, pixels * glsl::ACC_STRIDE);
+  gpu::Timer timer(ctx, 4);
+  auto copy_once = [&] { return time_once(ctx, timer, [&](VkCommandBuffer cmd) { copy.record(cmd); }); };
+  // Warm-ups (first-dispatch compiles), then each trace sample and resolve followed by one copy.
+  r.add_samples(1);
+  r.resolve();
+  copy_once();
+  std::vector<double> trace_ms, resolve_ms, copy_ms;
+  for (int i = 0; i < std::max(spp, 3); ++i) {
+    r.add_samples(1);
+    trace_ms.push_back(r.pass_stats().at("trace").ms.back());
+    copy_ms.push_back(copy_once());
+  }
+  for (int i = 0; i < 3; ++i) {
+    r.resolve();
+    resolve_ms.push_back(r.pass_stats().at("resolve").ms.back());
+    copy_ms.push_back(copy_once());
+  }
+  const double t_trace = render::median(trace_ms), t_resolve = render::median(resolve_ms);
+  const double t_copy = render::median(copy_ms);
+
   const auto& dm = r.media();
   glsl::GpuScene gs = volume::build_gpu_scene(s, dm, 0, 0);
   gpu::Buffer scene_buf(ctx, "bench scene", "benchmark", sizeof(gs), "GpuScene");
@@ -202,87 +279,250 @@ int run(const Options& o, const gpu::ContextOptions& co) {
   } push{uint32_t(pixels), 16};
   gpu::Buffer out(ctx, "bench lookup result", "benchmark", pixels * 4, "f32");
   gpu::ComputePipeline lookup(ctx, render::spv_dir() + "/bench/lookup.comp.0.spv", 5, 8);
-  double t_lookup = timed_median(ctx, 3, [&](VkCommandBuffer cmd) {
-    lookup.dispatch(cmd, {&scene_buf, &nano, &media, &maj, &out}, &push, (push.count + 63) / 64);
-  });
+  const auto lookup_and_copy = timed_medians(
+      ctx, 3,
+      {[&](VkCommandBuffer cmd) {
+         lookup.dispatch(cmd, {&scene_buf, &nano, &media, &maj, &out}, &push, (push.count + 63) / 64);
+       },
+       [&](VkCommandBuffer cmd) { copy.record(cmd); }});
+  const double t_lookup = lookup_and_copy[0], t_lookup_copy = lookup_and_copy[1];
   double lookups = double(push.count) * push.lookups;
-
-  nlohmann::json j;
-  j["device"] = ctx.describe();
-  j["size"] = {w, h};
-  j["spp"] = o.spp;
   j["copy_ms"] = t_copy;
   j["camera_rays_per_s"] = pixels / (t_trace * 1e-3);
   j["volume_samples_per_s"] = pixels * s.render.volume_samples / (t_trace * 1e-3);
   j["density_lookups_per_s"] = lookups / (t_lookup * 1e-3);
-  j["passes"] = {{"trace", {{"median_ms", t_trace}, {"ratio_to_copy", t_trace / t_copy}}},
-                 {"resolve", {{"ms", t_resolve}, {"ratio_to_copy", t_resolve / t_copy}}},
-                 {"lookup (16 per pixel)", {{"median_ms", t_lookup}, {"ratio_to_copy", t_lookup / t_copy}}}};
+  j["passes"] = {
+      {"trace", {{"median_ms", t_trace}, {"ratio_to_copy", t_trace / t_copy}}},
+      {"resolve", {{"median_ms", t_resolve}, {"ratio_to_copy", t_resolve / t_copy}}},
+      {"lookup (16 per pixel)",
+       {{"median_ms", t_lookup}, {"copy_ms", t_lookup_copy}, {"ratio_to_copy", t_lookup / t_lookup_copy}}}};
   j["pipeline_creation_ms"] = r.pipeline_ms();
-  BvhFigures bvh = bench_bvh(ctx);
-  j["bvh"] = {{"triangles", bvh.triangles},
-              {"gpu_rays_per_s", bvh.gpu_rays_per_s},
-              {"embree_rays_per_s", bvh.embree_rays_per_s},
-              {"gpu_over_embree", bvh.gpu_rays_per_s / bvh.embree_rays_per_s}};
-  // The surface SVGF instance: per-pass and total times against a copy of one of its RGBA16F images.
-  nlohmann::json dn = nlohmann::json::object();
-  for (size_t at = 0; at < o.denoise_sizes.size();) {
-    size_t comma = o.denoise_sizes.find(',', at);
-    std::string sz = o.denoise_sizes.substr(at, comma == std::string::npos ? std::string::npos : comma - at);
-    at = comma == std::string::npos ? o.denoise_sizes.size() : comma + 1;
-    int dw = 0, dh = 0;
-    if (std::sscanf(sz.c_str(), "%dx%d", &dw, &dh) != 2 || dw < 1 || dh < 1)
-      throw std::runtime_error(fmt::format("--denoise-sizes {}: expected WxH[,WxH...]", o.denoise_sizes));
-    double copy = copy_ms(ctx, size_t(dw) * dh * 2, 3);
-    nlohmann::json entry = {{"copy_ms", copy}, {"image_mb", double(dw) * dh * 8 / 1e6}};
+}
+
+// The surface SVGF instance: per-pass and total times against a copy of one of its RGBA16F images.
+json bench_svgf_sizes(gpu::Context& ctx, const std::string& sizes) {
+  json dn = json::object();
+  for (const std::string& sz : split(sizes, ',')) {
+    auto [dw, dh] = parse_size(sz, "--denoise-sizes");
+    CopyKernel copy(ctx, size_t(dw) * dh * 2);
+    json entry = {{"image_mb", double(dw) * dh * 8 / 1e6}, {"copy_ms", json::object()}};
     for (const char* kernel : {"5x5", "subsampled"}) {
-      nlohmann::json k = nlohmann::json::object();
-      for (auto& [pass, t] : bench_svgf(ctx, dw, dh, kernel, 3))
-        k[pass] = {{"median_ms", t}, {"ratio_to_copy", t / copy}};
+      json k = json::object();
+      auto t = bench_svgf(ctx, dw, dh, kernel, 5, copy);
+      const double c = t.at("copy");
+      entry["copy_ms"][kernel] = c;
+      for (auto& [pass, ms] : t)
+        if (pass != "copy") k[pass] = {{"median_ms", ms}, {"ratio_to_copy", ms / c}};
       entry[kernel] = k;
     }
     dn[sz] = entry;
   }
-  j["svgf_surface"] = dn;
-  if (o.guiding_seeds > 0) {
+  return dn;
+}
+
+// Every ratio of the run, each with its meaning: {key: {value, meaning[, min, max]}}, in print order.
+json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
+  json rows = json::array();
+  auto add = [&](const std::string& key, double v, const std::string& meaning) {
+    rows.push_back({{"key", key}, {"value", v}, {"meaning", meaning}});
+  };
+  if (j.contains("passes")) {
+    add("trace/copy", j["passes"]["trace"]["ratio_to_copy"],
+        "one trace dispatch (1 spp) / copy of the accumulation buffer");
+    add("resolve/copy", j["passes"]["resolve"]["ratio_to_copy"],
+        "resolve (means, denoisers, tonemap) / same copy");
+    add("lookup/copy", j["passes"]["lookup (16 per pixel)"]["ratio_to_copy"],
+        "16 tracker density lookups (sample_medium) per pixel / same copy");
+  }
+  if (j.contains("svgf_surface"))
+    for (const std::string& sz : svgf_sizes)
+      for (const char* kernel : {"5x5", "subsampled"})
+        add(fmt::format("svgf.surface {} {}/copy", sz, kernel),
+            j["svgf_surface"][sz][kernel]["total"]["ratio_to_copy"],
+            fmt::format("surface SVGF, all passes of a frame ({} a-trous) / copy of one RGBA16F image",
+                        kernel));
+  if (j.contains("bvh"))
+    add("BVH GPU/Embree", j["bvh"]["gpu_over_embree"],
+        "BVH rays/s on the GPU / Embree rays/s on all CPU threads, same rays and triangles");
+  if (j.contains("guiding")) {
+    for (const auto& e : j["guiding"]["equal_time"]) {
+      const auto& r = e["relmse_ratio_unguided_over_guided"];
+      add(fmt::format("{} unguided/guided", e["scene"].get<std::string>()), r["mean"],
+          fmt::format("volume relMSE at equal GPU time, mean over seeds ({:.2f}..{:.2f}); >1: guiding wins",
+                      r["min"].get<double>(), r["max"].get<double>()));
+      rows.back()["min"] = r["min"];
+      rows.back()["max"] = r["max"];
+    }
+    const auto& v = j["guiding"]["volume_denoiser"];
+    add("motion surface/virtual pts", v["relmse_ratio_surface_motion_over_virtual_points"],
+        "denoised volume relMSE on a panning shaft, surface / virtual-point motion; >1: virtual points win");
+    const auto& c = v["instances"];
+    add("svgf.volume/surface time", c["volume_over_surface_time"],
+        "GPU time per frame of the two SVGF instances");
+    add("svgf.volume/surface memory",
+        c["volume"]["bytes"].get<double>() / c["surface"]["bytes"].get<double>(),
+        "ledger bytes of the two SVGF instances");
+  }
+  if (j.contains("volume_repr"))
+    for (const auto& g : j["volume_repr"]["grids"]) {
+      const std::string id = g["name"];
+      add(fmt::format("nanovdb/dense time {} rnd", id), g["lookups"]["time_ratio_nanovdb_over_dense"],
+          fmt::format("{} random trilinear lookups, PNanoVDB / dense array; {}",
+                      g["lookups"]["lookups_per_invocation"].get<int>(), g["what"].get<std::string>()));
+      add(fmt::format("nanovdb/dense time {} march", id), g["march"]["time_ratio_nanovdb_over_dense"],
+          fmt::format("{}-step march along random segments, PNanoVDB / dense array",
+                      g["march"]["lookups_per_invocation"].get<int>()));
+      add(fmt::format("nanovdb/dense memory {}", id), g["memory_ratio_nanovdb_over_dense"],
+          fmt::format("NanoVDB grid bytes / dense array bytes ({:.0f}% of the bbox active)",
+                      100 * g["active_fraction_of_bbox"].get<double>()));
+    }
+  if (j.contains("first_frame")) {
+    const auto& f = j["first_frame"];
+    add("first/steady frame", f["first_over_steady"],
+        "wall time Renderer construction -> first resolve / a steady-state frame, same spp");
+    add("pipeline share of 1st frame", f["pipeline_share_of_first_frame"],
+        "pipeline creation / first frame (Mesa shader cache: warm or cold unknown)");
+  }
+  return rows;
+}
+
+}  // namespace
+
+const std::vector<std::string>& part_names() {
+  static const std::vector<std::string> names = {"first_frame", "passes",  "bvh",
+                                                 "svgf",        "guiding", "volume_repr"};
+  return names;
+}
+
+std::vector<std::string> parse_only(const std::string& only) {
+  if (only.empty()) return part_names();
+  std::set<std::string> wanted;
+  for (const std::string& name : split(only, ',')) {
+    if (std::find(part_names().begin(), part_names().end(), name) == part_names().end()) {
+      std::string valid;
+      for (const auto& n : part_names()) valid += (valid.empty() ? "" : ", ") + n;
+      throw std::runtime_error(fmt::format("--only: unknown part '{}'; valid parts: {}", name, valid));
+    }
+    wanted.insert(name);
+  }
+  std::vector<std::string> out;
+  for (const auto& n : part_names())
+    if (wanted.count(n)) out.push_back(n);
+  return out;
+}
+
+int run(const Options& o, const gpu::ContextOptions& co) {
+  // Every argument is checked before the device starts.
+  const std::vector<std::string> parts = parse_only(o.only);
+  auto wants = [&](const char* part) { return std::find(parts.begin(), parts.end(), part) != parts.end(); };
+  auto [w, h] = parse_size(o.size, "--size");
+  for (const std::string& sz : split(o.denoise_sizes, ',')) parse_size(sz, "--denoise-sizes");
+  if (o.denoise_sizes.empty()) throw std::runtime_error("--denoise-sizes: expected WxH[,WxH...]");
+  auto [gw, gh] = parse_size(o.guiding_size, "--guiding-size");
+  if (o.spp < 1) throw std::runtime_error(fmt::format("--spp {}: must be >= 1", o.spp));
+
+  gpu::Context ctx(co);
+  scene::Scene s = scene::from_json(bench_scene(w, h, o.spp), "bench scene", "");
+  json j;
+  j["device"] = ctx.describe();
+  j["size"] = {w, h};
+  j["spp"] = o.spp;
+  j["parts"] = parts;
+  // first_frame runs first: no pipeline of the bench scene exists yet in this process.
+  if (wants("first_frame")) j["first_frame"] = bench_first_frame(ctx, s);
+  if (wants("passes")) bench_passes(ctx, s, w, h, o.spp, j);
+  if (wants("bvh")) {
+    BvhFigures bvh = bench_bvh(ctx);
+    j["bvh"] = {{"triangles", bvh.triangles},
+                {"gpu_rays_per_s", bvh.gpu_rays_per_s},
+                {"embree_rays_per_s", bvh.embree_rays_per_s},
+                {"gpu_over_embree", bvh.gpu_rays_per_s / bvh.embree_rays_per_s}};
+  }
+  if (wants("svgf")) j["svgf_surface"] = bench_svgf_sizes(ctx, o.denoise_sizes);
+  if (wants("guiding") && o.guiding_seeds > 0) {
     GuidingBenchOptions go;
-    if (std::sscanf(o.guiding_size.c_str(), "%dx%d", &go.width, &go.height) != 2 || go.width < 1 ||
-        go.height < 1)
-      throw std::runtime_error(fmt::format("--guiding-size {}: expected WIDTHxHEIGHT", o.guiding_size));
+    go.width = gw;
+    go.height = gh;
     go.seeds = o.guiding_seeds;
     j["guiding"] = bench_guiding(ctx, go);
   }
+  if (wants("volume_repr")) {
+    VolumeReprOptions vo;
+    vo.invocations = uint32_t(w) * uint32_t(h);
+    j["volume_repr"] = bench_volume_repr(ctx, vo);
+  }
+  const std::vector<std::string> svgf_sizes = split(o.denoise_sizes, ',');
+  const json rows = summarize(j, svgf_sizes);
+  json summary = json::object();
+  for (json r : rows) {
+    const std::string key = r["key"];
+    r.erase("key");
+    summary[key] = r;
+  }
+  j["summary"] = summary;
+  const uint64_t messages = ctx.validation_messages();
+  j["validation_messages"] = messages;
+
   if (o.json) {
     fmt::print("{}\n", j.dump(2));
-    return 0;
+  } else {
+    fmt::print("haze bench on {} ({}); parts: {}\n", ctx.device_name(), ctx.driver_info(),
+               fmt::join(parts, ", "));
+    fmt::print("summary: ratios measured in this run on this device (medians after a warm-up)\n");
+    for (const auto& r : rows)
+      fmt::print("  {:<34}{:>9.3g}  {}\n", r["key"].get<std::string>(), r["value"].get<double>(),
+                 r["meaning"].get<std::string>());
+    if (j.contains("first_frame")) {
+      const auto& f = j["first_frame"];
+      fmt::print(
+          "time to first frame at {}x{}, {} spp (wall clock): {:.0f} ms = pipeline creation {:.0f} ms + rest "
+          "{:.0f} "
+          "ms (construction {:.0f} ms); steady frame {:.0f} ms; Mesa shader cache warm or cold: unknown\n",
+          w, h, f["spp"].get<int>(), f["first_frame_ms"].get<double>(),
+          f["pipeline_creation_ms"].get<double>(), f["rest_ms"].get<double>(),
+          f["construction_ms"].get<double>(), f["steady_frame_ms"].get<double>());
+    }
+    if (j.contains("passes")) {
+      size_t pixels = size_t(w) * h;
+      fmt::print("tracker at {}x{}, {} spp (ratios: pass time / copy of the {:.3g} MB accumulation buffer)\n",
+                 w, h, o.spp, pixels * glsl::ACC_STRIDE * 4 / 1e6);
+      fmt::print("  {:<28}{:>14}\n", "camera rays / s",
+                 fmt::format("{:.3g}", j["camera_rays_per_s"].get<double>()));
+      fmt::print("  {:<28}{:>14}\n", "volume samples / s",
+                 fmt::format("{:.3g}", j["volume_samples_per_s"].get<double>()));
+      fmt::print("  {:<28}{:>14}\n", "density lookups / s",
+                 fmt::format("{:.3g}", j["density_lookups_per_s"].get<double>()));
+      fmt::print("  {:<28}{:>14}\n", "pass", "x copy");
+      fmt::print("  {:<28}{:>14.1f}\n", "trace (1 spp)", j["passes"]["trace"]["ratio_to_copy"].get<double>());
+      fmt::print("  {:<28}{:>14.1f}\n", "resolve", j["passes"]["resolve"]["ratio_to_copy"].get<double>());
+      fmt::print("  {:<28}{:>14.1f}\n", "lookup (16 per pixel)",
+                 j["passes"]["lookup (16 per pixel)"]["ratio_to_copy"].get<double>());
+    }
+    if (j.contains("bvh")) {
+      const auto& b = j["bvh"];
+      fmt::print("BVH ({} triangles): GPU {:.3g} rays/s, Embree CPU {:.3g} rays/s, GPU / Embree {:.2f}\n",
+                 b["triangles"].get<size_t>(), b["gpu_rays_per_s"].get<double>(),
+                 b["embree_rays_per_s"].get<double>(), b["gpu_over_embree"].get<double>());
+    }
+    if (j.contains("svgf_surface"))
+      for (const std::string& sz : svgf_sizes) {
+        const json& entry = j["svgf_surface"][sz];
+        fmt::print("svgf.surface at {} (ratios: pass time / copy of one RGBA16F image, {:.3g} MB)\n", sz,
+                   entry["image_mb"].get<double>());
+        fmt::print("  {:<28}{:>14}{:>14}\n", "pass", "5x5", "subsampled");
+        for (auto& [pass, v] : entry["5x5"].items())
+          fmt::print("  {:<28}{:>14.1f}{:>14.1f}\n", pass, v["ratio_to_copy"].get<double>(),
+                     entry["subsampled"].contains(pass)
+                         ? entry["subsampled"][pass]["ratio_to_copy"].get<double>()
+                         : 0.0);
+      }
+    if (j.contains("guiding")) print_guiding(j["guiding"]);
+    if (j.contains("volume_repr")) print_volume_repr(j["volume_repr"]);
   }
-  fmt::print(
-      "haze bench on {} at {}x{}, {} spp (ratios: pass time / copy of the {} MB accumulation buffer)\n",
-      ctx.device_name(), w, h, o.spp, pixels * glsl::ACC_STRIDE * 4 / 1e6);
-  fmt::print("  {:<28}{:>14}\n", "camera rays / s",
-             fmt::format("{:.3g}", j["camera_rays_per_s"].get<double>()));
-  fmt::print("  {:<28}{:>14}\n", "volume samples / s",
-             fmt::format("{:.3g}", j["volume_samples_per_s"].get<double>()));
-  fmt::print("  {:<28}{:>14}\n", "density lookups / s",
-             fmt::format("{:.3g}", j["density_lookups_per_s"].get<double>()));
-  fmt::print("  {:<28}{:>14}\n", fmt::format("BVH rays / s ({} tris)", bvh.triangles),
-             fmt::format("{:.3g}", bvh.gpu_rays_per_s));
-  fmt::print("  {:<28}{:>14}\n", "Embree CPU rays / s", fmt::format("{:.3g}", bvh.embree_rays_per_s));
-  fmt::print("  {:<28}{:>14.2f}\n", "BVH GPU / Embree", bvh.gpu_rays_per_s / bvh.embree_rays_per_s);
-  fmt::print("  {:<28}{:>14}\n", "pass", "x copy");
-  fmt::print("  {:<28}{:>14.1f}\n", "trace (1 spp)", t_trace / t_copy);
-  fmt::print("  {:<28}{:>14.1f}\n", "resolve", t_resolve / t_copy);
-  fmt::print("  {:<28}{:>14.1f}\n", "lookup (16 per pixel)", t_lookup / t_copy);
-  for (auto& [sz, entry] : dn.items()) {
-    fmt::print("svgf.surface at {} (ratios: pass time / copy of one RGBA16F image, {:.3g} MB)\n", sz,
-               entry["image_mb"].get<double>());
-    fmt::print("  {:<28}{:>14}{:>14}\n", "pass", "5x5", "subsampled");
-    for (auto& [pass, v] : entry["5x5"].items())
-      fmt::print("  {:<28}{:>14.1f}{:>14.1f}\n", pass, v["ratio_to_copy"].get<double>(),
-                 entry["subsampled"].contains(pass) ? entry["subsampled"][pass]["ratio_to_copy"].get<double>()
-                                                    : 0.0);
+  if (messages > 0) {
+    fmt::print(stderr, "haze: {} Vulkan validation messages\n", messages);
+    return 3;
   }
-  if (j.contains("guiding")) print_guiding(j["guiding"]);
   return 0;
 }
 

@@ -1,21 +1,31 @@
-// `haze bench`: throughput figures and each pass's time as a ratio to a copy kernel over the same
-// amount of data, measured in one run on one device.
+// `haze bench`: the benchmark suite. Every figure is a ratio of two times (or sizes) measured in the same run
+// on the same device, medians of repeated timings after a warm-up; docs/benchmarks.md says what each means.
 #pragma once
 
 #include <string>
+#include <vector>
 
 #include "gpu/gpu.hpp"
 
 namespace haze::bench {
 
+// The parts of the suite, in the order they run (first_frame first: it must see no pipeline of the bench
+// scene created earlier in the process).
+const std::vector<std::string>& part_names();
+
 struct Options {
   bool json = false;
-  std::string size = "320x180";
+  std::string size = "320x180";  // the bench scene's size; also the invocations of the volume_repr kernels
   int spp = 8;
   std::string denoise_sizes = "640x360,1920x1080";  // the SVGF instance's pass times at these sizes
   std::string guiding_size = "96x54";               // guided vs unguided, volume denoiser figures
   int guiding_seeds = 4;                            // 0: skip those figures
+  std::string only;                                 // comma-separated part names; empty: all
 };
+
+// The parts `only` names (all when empty); throws a one-line error naming an unknown part and listing the
+// valid ones.
+std::vector<std::string> parse_only(const std::string& only);
 
 int run(const Options& o, const gpu::ContextOptions& co);
 
