@@ -27,12 +27,24 @@ struct LayerImage {
   }
 };
 
+// The layer's channels in the order haze writes them (R, G, B; X, Y, Z), not the file's alphabetical one:
+// FLIP reads the first three as R, G, B.
 std::vector<std::string> layer_channels(const ExrImage& img, const std::string& layer) {
   std::vector<std::string> out;
   for (const auto& c : img.channels) {
     bool base = c.find('.') == std::string::npos;
     if (layer.empty() ? base : c.rfind(layer + ".", 0) == 0) out.push_back(c);
   }
+  auto rank = [](const std::string& c) {
+    const std::string suffix = c.substr(c.rfind('.') == std::string::npos ? 0 : c.rfind('.') + 1);
+    static const std::string order[] = {"R", "G", "B", "A", "X", "Y", "Z"};
+    for (int i = 0; i < 7; ++i)
+      if (suffix == order[i]) return i;
+    return 7;
+  };
+  std::stable_sort(out.begin(), out.end(), [&](const std::string& a, const std::string& b) {
+    return rank(a) != rank(b) ? rank(a) < rank(b) : a < b;
+  });
   return out;
 }
 

@@ -364,6 +364,9 @@ TEST_F(Cli, CompareImagesAndSequences) {
   auto text = run(fmt::format("compare {} {}", ref, test));
   ASSERT_EQ(text.code, 0) << text.out;
   EXPECT_NE(text.out.find("PSNR inf dB"), std::string::npos) << text.out;  // R, G, B are equal
+  // Channels in haze's order, not the file's alphabetical one (FLIP takes the first three as R, G, B).
+  auto base = nlohmann::json::parse(run(fmt::format("compare {} {} --json", ref, test)).out);
+  EXPECT_EQ(base["channels"], (nlohmann::json{"R", "G", "B"}));
 
   fs::create_directories(dir / "rs");
   fs::create_directories(dir / "ts");
