@@ -29,16 +29,22 @@ namespace {
 
 using namespace haze;
 
+// A progress bar with the elapsed time and an ETA, on stderr when it is a terminal.
 struct Progress {
+  const char* unit = "spp";
   bool tty = isatty(fileno(stderr));
   std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
+  // "[#####.....] 3/8 runs  12.0s  ETA 20.0s"
+  std::string line(size_t done, size_t total) const {
+    double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    double eta = done > 0 ? el / double(done) * double(total - done) : 0;
+    size_t w = 30, filled = total > 0 ? w * done / total : w;
+    return fmt::format("[{}{}] {}/{} {}  {:.1f}s  ETA {:.1f}s", std::string(filled, '#'),
+                       std::string(w - filled, '.'), done, total, unit, el, eta);
+  }
   void operator()(int done, int total) const {
     if (!tty) return;
-    double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    double eta = done > 0 ? el / done * (total - done) : 0;
-    int w = 30, filled = total > 0 ? w * done / total : w;
-    fmt::print(stderr, "\r[{}{}] {}/{} spp  {:.1f}s  ETA {:.1f}s ", std::string(filled, '#'),
-               std::string(w - filled, '.'), done, total, el, eta);
+    fmt::print(stderr, "\r{} ", line(size_t(done), size_t(total)));
     if (done == total) fmt::print(stderr, "\n");
   }
 };
@@ -52,15 +58,23 @@ gpu::ContextOptions context_options(const std::string& device, bool validation, 
   return o;
 }
 
-// "WxH" into render.width/height overrides.
-void size_overrides(const std::string& size, std::vector<std::string>& overrides) {
-  if (size.empty()) return;
-  int w = 0, h = 0;
-  char x = 0;
-  if (std::sscanf(size.c_str(), "%d%c%d", &w, &x, &h) != 3 || (x != 'x' && x != 'X'))
-    throw std::runtime_error(fmt::format("--size {}: expected WIDTHxHEIGHT, e.g. 320x180", size));
-  overrides.push_back(fmt::format("render.width={}", w));
-  overrides.push_back(fmt::format("render.height={}", h));
+// The scene with the command's overrides, --size and --frames applied. --frames goes through the scene's own
+// render.frames so that sequence files are checked for exactly these.
+scene::Scene load_scene(const std::string& path, std::vector<std::string> overrides, const std::string& size,
+                        const std::string& frames) {
+  if (!size.empty()) {
+    int w = 0, h = 0;
+    char x = 0;
+    if (std::sscanf(size.c_str(), "%d%c%d", &w, &x, &h) != 3 || (x != 'x' && x != 'X'))
+      throw std::runtime_error(fmt::format("--size {}: expected WIDTHxHEIGHT, e.g. 320x180", size));
+    overrides.push_back(fmt::format("render.width={}", w));
+    overrides.push_back(fmt::format("render.height={}", h));
+  }
+  if (!frames.empty()) {
+    scene::parse_frames(frames);
+    overrides.push_back(fmt::format("render.frames={}", frames));
+  }
+  return scene::load(path, overrides);
 }
 
 int run_render(const std::string& scene_path, const std::string& out, int spp, const std::string& size,
@@ -68,13 +82,7 @@ int run_render(const std::string& scene_path, const std::string& out, int spp, c
                const gpu::ContextOptions& co) {
   std::vector<std::string> overrides = sets;
   if (spp > 0) overrides.push_back(fmt::format("render.spp={}", spp));
-  size_overrides(size, overrides);
-  // --frames goes through the scene's own render.frames so that sequence files are checked for exactly these.
-  if (!frames.empty()) {
-    scene::parse_frames(frames);
-    overrides.push_back(fmt::format("render.frames={}", frames));
-  }
-  scene::Scene s = scene::load(scene_path, overrides);
+  scene::Scene s = load_scene(scene_path, overrides, size, frames);
   auto [first, last] = scene::frame_range(s);
   render::ensure_writable_dir(out);
   gpu::Context ctx(co);
@@ -115,13 +123,7 @@ int run_reference(const std::string& scene_path, const std::string& out, const s
   if (o.min_spp > o.max_spp)
     throw std::runtime_error(
         fmt::format("--min-spp {} is above --max-spp {}; lower it", o.min_spp, o.max_spp));
-  std::vector<std::string> overrides = sets;
-  size_overrides(size, overrides);
-  if (!frames.empty()) {
-    scene::parse_frames(frames);
-    overrides.push_back(fmt::format("render.frames={}", frames));
-  }
-  scene::Scene s = scene::load(scene_path, overrides);
+  scene::Scene s = load_scene(scene_path, sets, size, frames);
   auto [first, last] = scene::frame_range(s);
   render::ensure_writable_dir(out);
   gpu::Context ctx(co);
@@ -154,22 +156,19 @@ int run_sweep(const std::string& file, const std::string& out, const std::string
                m["merged"].get<size_t>(), m["sources"].get<size_t>(), out);
     return 0;
   }
-  std::vector<render::Run> runs = render::expand(spec);
-  render::check_runs(spec, runs);
   if (list) {
+    std::vector<render::Run> runs = render::expand(spec);
+    render::check_runs(spec, runs);
     for (const auto& r : render::shard_runs(runs, shard))
       fmt::print("{}\n", nlohmann::json{{"index", r.index}, {"run", r.id}, {"settings", r.settings}}.dump());
     return 0;
   }
   gpu::Context ctx(co);
   fmt::print(stderr, "device: {} ({})\n", ctx.device_name(), ctx.driver_info());
-  const bool tty = isatty(fileno(stderr));
-  const auto start = std::chrono::steady_clock::now();
+  const Progress bar{"runs"};
   render::SweepHooks hooks;
-  hooks.log = [&](const std::string& line) { fmt::print(stderr, "{}{}\n", tty ? "\r\033[K" : "", line); };
+  hooks.log = [&](const std::string& line) { fmt::print(stderr, "{}{}\n", bar.tty ? "\r\033[K" : "", line); };
   hooks.progress = [&](size_t done, size_t total, const nlohmann::json* row) {
-    double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    double eta = done > 0 ? el / double(done) * double(total - done) : 0;
     std::string last;
     if (row) {
       last = fmt::format("run {} {:.3g} ms/frame", (*row)["index"].get<size_t>(),
@@ -177,13 +176,10 @@ int run_sweep(const std::string& file, const std::string& out, const std::string
       if (row->contains("metrics") && (*row)["metrics"].contains("relmse"))
         last += fmt::format(" relMSE {:.3g}", (*row)["metrics"]["relmse"].get<double>());
     }
-    int w = 30, filled = total > 0 ? int(w * done / total) : w;
-    if (tty)
-      fmt::print(stderr, "\r\033[K[{}{}] {}/{} runs  {:.0f}s  ETA {:.0f}s  {}", std::string(filled, '#'),
-                 std::string(w - filled, '.'), done, total, el, eta, last);
+    if (bar.tty)
+      fmt::print(stderr, "\r\033[K{}  {}{}", bar.line(done, total), last, done == total ? "\n" : "");
     else if (row)
-      fmt::print(stderr, "{}/{} runs  {:.0f}s  ETA {:.0f}s  {}\n", done, total, el, eta, last);
-    if (tty && done == total) fmt::print(stderr, "\n");
+      fmt::print(stderr, "{}  {}\n", bar.line(done, total), last);
   };
   int code = render::run_sweep(ctx, spec, out, shard, hooks);
   fmt::print(stderr, "wrote {}/results.jsonl and results.csv\n", render::shard_dir(out, shard));

@@ -17,16 +17,6 @@ namespace fs = std::filesystem;
 namespace {
 
 // One layer of an EXR as interleaved floats (channels in the reference's order).
-struct LayerImage {
-  int width = 0, height = 0;
-  std::vector<std::string> channels;
-  std::vector<float> data;
-  Channels view() const {
-    uint32_t n = uint32_t(channels.size());
-    return {data.data(), size_t(width) * height, n, 0, n};
-  }
-};
-
 // The layer's channels in the order haze writes them (R, G, B; X, Y, Z), not the file's alphabetical one:
 // FLIP reads the first three as R, G, B.
 std::vector<std::string> layer_channels(const ExrImage& img, const std::string& layer) {
@@ -60,8 +50,8 @@ std::string layer_list(const ExrImage& img) {
   return s;
 }
 
-LayerImage load_layer(const std::string& path, const std::string& layer,
-                      const std::vector<std::string>* want) {
+LayerImage load_layer(const std::string& path, const std::string& layer, const std::vector<std::string>* want,
+                      bool require_finite) {
   ExrImage img = read_exr(path);
   LayerImage li;
   li.width = img.width;
@@ -84,7 +74,7 @@ LayerImage load_layer(const std::string& path, const std::string& layer,
       if (!std::isfinite(plane[p])) ++nonfinite;
     }
   }
-  if (nonfinite)
+  if (nonfinite && require_finite)
     throw Error(fmt::format("{}: {} has {} non-finite values (NaN or Inf); metrics need finite images", path,
                             shown, nonfinite));
   return li;
@@ -133,6 +123,10 @@ nlohmann::json image_metrics(const Channels& test, const Channels& ref, int widt
   return metrics_of(test, ref, width, height, nullptr);
 }
 
+LayerImage read_layer(const std::string& path, const std::string& layer, bool require_finite) {
+  return load_layer(path, layer, nullptr, require_finite);
+}
+
 nlohmann::json compare_paths(const std::string& ref, const std::string& test, const std::string& layer,
                              const std::string& flip_map) {
   for (const auto& p : {ref, test})
@@ -163,8 +157,8 @@ nlohmann::json compare_paths(const std::string& ref, const std::string& test, co
   double sum_relmse = 0, sum_smape = 0, sum_mse = 0, sum_flip_ldr = 0, sum_flip_hdr = 0;
   bool has_flip = true;
   for (size_t f = 0; f < refs.size(); ++f) {
-    r.push_back(load_layer(refs[f], layer, nullptr));
-    t.push_back(load_layer(tests[f], layer, &r.back().channels));
+    r.push_back(load_layer(refs[f], layer, nullptr, true));
+    t.push_back(load_layer(tests[f], layer, &r.back().channels, true));
     const LayerImage &rf = r.back(), &tf = t.back();
     if (tf.width != rf.width || tf.height != rf.height)
       throw Error(fmt::format("{} is {}x{}, {} is {}x{}; compare images of one size", tests[f], tf.width,

@@ -5,10 +5,25 @@
 
 #include <nlohmann/json.hpp>
 #include <string>
+#include <vector>
 
 #include "render/metrics.hpp"
 
 namespace haze::render {
+
+// One layer of an EXR file, its channels interleaved per pixel in haze's order (R, G, B; X, Y, Z).
+struct LayerImage {
+  int width = 0, height = 0;
+  std::vector<std::string> channels;
+  std::vector<float> data;
+  Channels view() const {
+    uint32_t n = uint32_t(channels.size());
+    return {data.data(), size_t(width) * height, n, 0, n};
+  }
+};
+// layer: "" for R, G, B, else the channels "<layer>.*". Throws a one-line Error for a missing file or
+// layer, and for NaN or Inf when require_finite.
+LayerImage read_layer(const std::string& path, const std::string& layer, bool require_finite = true);
 
 // relMSE, SMAPE, MSE, PSNR, FLIP LDR and HDR of test against ref: the one place both `haze compare` and
 // sweeps compute them. Keys relmse, smape, mse, psnr ("inf" when identical), flip_ldr, flip_hdr (null for

@@ -23,7 +23,7 @@ double mean_of(const Channels& x, const Channels& ref, F&& f) {
 }  // namespace
 
 double relmse(const Channels& x, const Channels& ref) {
-  return mean_of(x, ref, [](double a, double r) { return (a - r) * (a - r) / (r * r + 0.01); });
+  return mean_of(x, ref, relmse_term);
 }
 
 double smape(const Channels& x, const Channels& ref) {
@@ -68,7 +68,7 @@ Temporal temporal(const std::vector<Channels>& x, const std::vector<Channels>& r
       for (uint32_t c = 0; c < x1.count; ++c) {
         double dx = double(x1.at(p, c)) - x0.at(p, c), dr = double(r1.at(p, c)) - r0.at(p, c);
         double r = r1.at(p, c);
-        rel += (dx - dr) * (dx - dr) / (r * r + 0.01);
+        rel += (dx - dr) * (dx - dr) / relmse_denominator(r);
         abs_dx += std::abs(dx);
         abs_dr += std::abs(dr);
         ++n;

@@ -19,7 +19,14 @@ struct Channels {
   float at(size_t p, uint32_t c) const { return data[p * stride + offset + c]; }
 };
 
-// relMSE = mean (x - r)^2 / (r^2 + 0.01).
+// relMSE = mean (x - r)^2 / (r^2 + 0.01). Its denominator, and the term of one value (for per-pixel maps
+// and the references' standard error):
+inline double relmse_denominator(double r) {
+  return r * r + 0.01;
+}
+inline double relmse_term(double x, double r) {
+  return (x - r) * (x - r) / relmse_denominator(r);
+}
 double relmse(const Channels& x, const Channels& ref);
 // SMAPE = mean |x - r| / (|x| + |r| + 0.01).
 double smape(const Channels& x, const Channels& ref);

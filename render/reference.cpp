@@ -10,8 +10,12 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <map>
+#include <mutex>
 
+#include "render/metrics.hpp"
 #include "render/output.hpp"
+#include "render/run.hpp"
 #include "scene/animation.hpp"
 
 namespace haze::render {
@@ -40,30 +44,45 @@ class FileLock {
   int fd_ = -1;
 };
 
+// FNV-1a 64, continued from h over `n` bytes.
+uint64_t fnv1a(uint64_t h, const char* bytes, size_t n) {
+  for (size_t i = 0; i < n; ++i) {
+    h ^= uint8_t(bytes[i]);
+    h *= 1099511628211ull;
+  }
+  return h;
+}
+constexpr uint64_t kFnvBasis = 1469598103934665603ull;
+
+// Content hash of a file, remembered by path, size and modification time: a sweep asks for the same
+// (possibly large) .vdb at every run.
 std::string file_hash(const std::string& path) {
+  static std::mutex mutex;
+  static std::map<std::string, std::pair<std::string, std::string>> known;  // path -> (stamp, hash)
+  std::error_code ec;
+  const auto size = fs::file_size(path, ec);
+  if (ec) throw Error(fmt::format("cannot read {} for the reference key; check that it exists", path));
+  const std::string stamp =
+      fmt::format("{}:{}", size, fs::last_write_time(path, ec).time_since_epoch().count());
+  std::lock_guard lock(mutex);
+  if (auto it = known.find(path); it != known.end() && it->second.first == stamp) return it->second.second;
   std::ifstream f(path, std::ios::binary);
   if (!f) throw Error(fmt::format("cannot read {} for the reference key; check that it exists", path));
-  uint64_t h = 1469598103934665603ull;
+  uint64_t h = kFnvBasis;
   std::vector<char> buf(1 << 20);
   while (f) {
     f.read(buf.data(), std::streamsize(buf.size()));
-    for (std::streamsize i = 0; i < f.gcount(); ++i) {
-      h ^= uint8_t(buf[size_t(i)]);
-      h *= 1099511628211ull;
-    }
+    h = fnv1a(h, buf.data(), size_t(f.gcount()));
   }
-  return fmt::format("{:016x}", h);
+  std::string hash = fmt::format("{:016x}", h);
+  known[path] = {stamp, hash};
+  return hash;
 }
 
 }  // namespace
 
 std::string hash_key(std::string_view bytes) {
-  uint64_t h = 1469598103934665603ull;  // FNV-1a 64
-  for (char c : bytes) {
-    h ^= uint8_t(c);
-    h *= 1099511628211ull;
-  }
-  return fmt::format("{:016x}", h);
+  return fmt::format("{:016x}", fnv1a(kFnvBasis, bytes.data(), bytes.size()));
 }
 
 json ReferenceOptions::to_json() const {
@@ -170,7 +189,7 @@ std::vector<float> relative_standard_errors(const Image& img) {
     for (uint32_t c = 0; c < 3; ++c) {
       const double mean = img.data[p * glsl::OUT_STRIDE + glsl::OUT_L + c];
       const double var = img.data[p * glsl::OUT_STRIDE + glsl::OUT_VAR + c];
-      worst = std::max(worst, std::sqrt(var / n / (mean * mean + 0.01)));
+      worst = std::max(worst, std::sqrt(var / n / relmse_denominator(mean)));
     }
     e[p] = std::isfinite(worst) ? float(worst) : INFINITY;
   }
@@ -220,14 +239,7 @@ json make_reference(gpu::Context& ctx, const scene::Scene& s_in, int first, int 
       continue;
     }
     auto t0 = clock::now();
-    scene::Scene fs_ = scene::scene_at_frame(s, f);
-    scene::Scene prev = scene::scene_at_frame(s, f - 1);
-    if (!r)
-      r = std::make_unique<Renderer>(ctx, fs_, uint32_t(f), &prev);
-    else if (fresh)
-      r->restart(fs_, uint32_t(f), &prev);
-    else
-      r->set_scene(fs_, uint32_t(f), &prev);
+    use_frame(ctx, r, s, f, fresh);
     fresh = false;
     ReferenceFrame rf;
     rf.frame = f;

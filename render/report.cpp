@@ -11,6 +11,8 @@
 #include <map>
 #include <set>
 
+#include "render/compare.hpp"
+#include "render/metrics.hpp"
 #include "render/output.hpp"
 #include "render/reference.hpp"
 #include "render/sweep.hpp"
@@ -164,8 +166,19 @@ json report_data(const std::string& dir, const ReportOptions& o) {
       g["error"] = mean;
       g["error_sd"] = sd;
     }
-    g["run_ids"] = json::array();
-    for (const json* r : rs) g["run_ids"].push_back((*r)["run"]);
+    // The image grid shows a group's first run that kept an image, and the reference frame it was compared
+    // with.
+    for (const json* r : rs) {
+      if (!r->contains("images") || (*r)["images"].empty()) continue;
+      g["image"] = (d / (*r)["images"].back().get<std::string>()).string();
+      if (r->contains("reference")) {
+        const std::string frames = (*r)["frames"].get<std::string>();
+        const int last = std::stoi(frames.substr(frames.find(':') + 1));
+        g["reference_image"] =
+            reference_frame_path((d / (*r)["reference"].get<std::string>()).string(), last);
+      }
+      break;
+    }
     out.push_back(g);
   }
   // Pareto front of (time, error): no other group is at least as fast and as accurate, and better in one.
@@ -198,25 +211,9 @@ std::vector<uint32_t> preview(const std::vector<float>& rgb, size_t pixels) {
   return px;
 }
 
-std::vector<float> exr_rgb(const std::string& path, const std::string& layer, int& w, int& h) {
-  ExrImage e = read_exr(path);
-  w = e.width;
-  h = e.height;
-  std::vector<float> rgb(size_t(w) * h * 3);
-  const char* c3[3] = {"R", "G", "B"};
-  for (int c = 0; c < 3; ++c) {
-    const auto& plane = e.channel(layer.empty() ? c3[c] : layer + "." + c3[c]);
-    for (size_t p = 0; p < plane.size(); ++p) rgb[p * 3 + size_t(c)] = plane[p];
-  }
-  return rgb;
-}
-
 // The image grid's inputs: previews and per-pixel relMSE maps of the chosen groups' first runs, and the
 // crop window where their error concentrates.
-json prepare_images(const json& data, const std::vector<json>& rows, const std::string& dir,
-                    const fs::path& fig, const ReportOptions& o) {
-  std::map<std::string, const json*> by_id;
-  for (const auto& r : rows) by_id[r["run"].get<std::string>()] = &r;
+json prepare_images(const json& data, const fs::path& fig, const ReportOptions& o) {
   // Pareto groups by time first, then the rest by error: the most informative columns.
   std::vector<const json*> pick;
   for (const auto& g : data["groups"])
@@ -235,41 +232,30 @@ json prepare_images(const json& data, const std::vector<json>& rows, const std::
   std::string ref_path;
   for (const json* g : pick) {
     if (int(cols.size()) >= o.max_images) break;
-    const json& row = *by_id.at((*g)["run_ids"][0].get<std::string>());
-    if (row["images"].empty()) continue;
-    const std::string img = (fs::path(dir) / row["images"].back().get<std::string>()).string();
-    int w = 0, h = 0;
-    std::vector<float> x = exr_rgb(img, layer, w, h);
+    if (!g->contains("image")) continue;
+    LayerImage x = read_layer((*g)["image"].get<std::string>(), layer, false);
     if (W == 0) {
-      W = w;
-      H = h;
+      W = x.width;
+      H = x.height;
     }
-    if (w != W || h != H) continue;  // one grid, one size
-    const size_t pixels = size_t(w) * h;
+    if (x.width != W || x.height != H) continue;  // one grid, one size
+    const size_t pixels = size_t(W) * H;
     const int k = int(cols.size());
     const std::string png = (fig / fmt::format("column_{}.png", k)).string();
-    write_png_rgba8(png, w, h, preview(x, pixels));
+    write_png_rgba8(png, W, H, preview(x.data, pixels));
     json col = {{"label", (*g)["short"]}, {"png", png}};
-    if (row.contains("reference")) {
-      const std::string frame = row["frames"].get<std::string>();
-      const int last = std::stoi(frame.substr(frame.find(':') + 1));
-      const std::string rp =
-          reference_frame_path((fs::path(dir) / row["reference"].get<std::string>()).string(), last);
-      int rw = 0, rh = 0;
-      std::vector<float> r = exr_rgb(rp, "", rw, rh);
+    if (g->contains("reference_image")) {
+      LayerImage r = read_layer((*g)["reference_image"].get<std::string>(), "");
       if (ref_path.empty()) {
         ref_path = (fig / "reference.png").string();
-        write_png_rgba8(ref_path, rw, rh, preview(r, pixels));
+        write_png_rgba8(ref_path, W, H, preview(r.data, pixels));
       }
-      // Per-pixel relMSE, the channels' mean (render/metrics.cpp's formula, per pixel).
+      // Per-pixel relMSE, the mean over R, G, B.
       std::vector<float> e(pixels);
       double mean = 0;
       for (size_t p = 0; p < pixels; ++p) {
         double s = 0;
-        for (int c = 0; c < 3; ++c) {
-          const double dx = x[p * 3 + size_t(c)] - r[p * 3 + size_t(c)], rr = r[p * 3 + size_t(c)];
-          s += dx * dx / (rr * rr + 0.01) / 3;
-        }
+        for (size_t c = 0; c < 3; ++c) s += relmse_term(x.data[p * 3 + c], r.data[p * 3 + c]) / 3;
         e[p] = std::isfinite(s) ? float(s) : 0.f;
         mean += e[p] / double(pixels);
       }
@@ -317,10 +303,9 @@ std::string write_report(const std::string& dir, const ReportOptions& o) {
   const std::string html_path = o.out.empty() ? (fs::path(dir) / "report.html").string() : o.out;
   const fs::path fig = fs::path(html_path).parent_path() / (fs::path(html_path).stem().string() + "_figures");
   ensure_writable_dir(fig.string());
-  std::vector<json> rows = read_results((fs::path(dir) / "results.jsonl").string());
   data["figures_dir"] = fig.string();
   data["metric_map"] = "relMSE per pixel";
-  json images = prepare_images(data, rows, dir, fig, o);
+  json images = prepare_images(data, fig, o);
   if (!images.is_null()) data["images"] = images;
   const std::string data_path = (fig / "data.json").string();
   write_json(data_path, data);

@@ -14,22 +14,26 @@ double total_gpu_ms(const Renderer& r) {
   return ms;
 }
 
+scene::Scene use_frame(gpu::Context& ctx, std::unique_ptr<Renderer>& r, const scene::Scene& s, int f,
+                       bool fresh) {
+  scene::Scene fs = scene::scene_at_frame(s, f);
+  scene::Scene prev = scene::scene_at_frame(s, f - 1);  // for motion vectors
+  if (!r)
+    r = std::make_unique<Renderer>(ctx, fs, uint32_t(f), &prev);
+  else if (fresh)
+    r->restart(fs, uint32_t(f), &prev);
+  else
+    r->set_scene(fs, uint32_t(f), &prev);
+  return fs;
+}
+
 RunSummary render_frames(gpu::Context& ctx, const scene::Scene& s, int first, int last, const FrameLoop& loop,
                          std::unique_ptr<Renderer>& r) {
   using clock = std::chrono::steady_clock;
   RunSummary out;
-  bool fresh = true;
   for (int f = first; f <= last; ++f) {
     auto t0 = clock::now();
-    scene::Scene fs = scene::scene_at_frame(s, f);
-    scene::Scene prev = scene::scene_at_frame(s, f - 1);  // for motion vectors
-    if (!r)
-      r = std::make_unique<Renderer>(ctx, fs, uint32_t(f), &prev);
-    else if (fresh)
-      r->restart(fs, uint32_t(f), &prev);
-    else
-      r->set_scene(fs, uint32_t(f), &prev);
-    fresh = false;
+    scene::Scene fs = use_frame(ctx, r, s, f, f == first);
     for (const auto& n : r->notes())
       if (std::find(out.notes.begin(), out.notes.end(), n) == out.notes.end()) {
         if (loop.on_note) loop.on_note(n);

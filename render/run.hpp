@@ -31,6 +31,11 @@ struct RunSummary {
 RunSummary render_frames(gpu::Context& ctx, const scene::Scene& s, int first, int last, const FrameLoop& loop,
                          std::unique_ptr<Renderer>& r);
 
+// Points `r` at frame f of `s` (with the previous frame for motion) and returns that frame's scene: makes the
+// Renderer, restarts it for a new run (`fresh`: pipelines kept, nothing else), or moves it to the next frame.
+scene::Scene use_frame(gpu::Context& ctx, std::unique_ptr<Renderer>& r, const scene::Scene& s, int f,
+                       bool fresh);
+
 // Sum of every pass's recorded GPU times.
 double total_gpu_ms(const Renderer& r);
 

@@ -2,6 +2,7 @@
 
 #include <fcntl.h>
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -26,9 +27,9 @@ using nlohmann::json;
 
 namespace {
 
-const char* const kKeys =
-    "scene, set, axes, combine, seeds, frames, reference, layer, require_finite, save_images, "
-    "description";
+const std::vector<std::string> kKeys = {"scene",          "set",         "axes",       "combine",
+                                        "seeds",          "frames",      "reference",  "layer",
+                                        "require_finite", "save_images", "description"};
 
 // A scene error about an override reads "(in --set path=v)"; in a sweep the override came from the file.
 std::string from_sweep(std::string msg) {
@@ -65,12 +66,9 @@ SweepSpec load_sweep(const std::string& path, const std::vector<std::string>& cl
     throw Error(fmt::format("{}: {}: {}", path, key, why));
   };
   if (!j.is_object()) fail("(top)", "expected an object with \"scene\" and \"axes\"");
-  // The key list above is a comma-separated string: check whole words.
-  for (const auto& [k, v] : j.items()) {
-    std::string list = std::string(", ") + kKeys + ",";
-    if (list.find(", " + k + ",") == std::string::npos)
-      fail(k, fmt::format("unknown key; the keys are {}", kKeys));
-  }
+  for (const auto& [k, v] : j.items())
+    if (std::find(kKeys.begin(), kKeys.end(), k) == kKeys.end())
+      fail(k, fmt::format("unknown key; the keys are {}", fmt::join(kKeys, ", ")));
 
   if (!j.contains("scene") || !j["scene"].is_string() || j["scene"].get<std::string>().empty())
     fail("scene",
@@ -369,21 +367,25 @@ std::string results_csv(const std::vector<json>& rows) {
     for (const auto& [k, v] : r["memory"]["per_category"].items())
       put(i, "mem_" + k + "_mb", v.get<double>() / 1e6);
   }
-  auto quote = [](const std::string& s) {
-    if (s.find_first_of(",\"\n") == std::string::npos) return s;
-    std::string q = "\"";
-    for (char c : s) q += c == '"' ? std::string("\"\"") : std::string(1, c);
-    return q + "\"";
+  auto append = [](std::string& out, size_t c, const std::string& s) {
+    if (c > 0) out += ',';
+    if (s.find_first_of(",\"\n") == std::string::npos) {
+      out += s;
+      return;
+    }
+    out += '"';
+    for (char ch : s) out += ch == '"' ? "\"\"" : std::string(1, ch);
+    out += '"';
   };
   std::string out;
-  for (size_t c = 0; c < columns.size(); ++c) out += (c ? "," : "") + quote(columns[c]);
-  out += "\n";
+  for (size_t c = 0; c < columns.size(); ++c) append(out, c, columns[c]);
+  out += '\n';
   for (const auto& row : cells) {
     for (size_t c = 0; c < columns.size(); ++c) {
       auto it = row.find(columns[c]);
-      out += (c ? "," : "") + (it == row.end() ? std::string() : quote(it->second));
+      append(out, c, it == row.end() ? std::string() : it->second);
     }
-    out += "\n";
+    out += '\n';
   }
   return out;
 }
@@ -414,18 +416,17 @@ void append_line(const std::string& path, const std::string& line) {
     throw Error(fmt::format("cannot append to {}: short write; disk full?", path));
 }
 
-// The layer's channels of `img`, planar by pixel (count floats per pixel).
-std::vector<float> layer_values(const Image& img, const std::string& layer, uint32_t& count) {
+// The RGB layer's values of `img`, 3 floats per pixel (load_sweep admits RGB layers only).
+std::vector<float> layer_values(const Image& img, const std::string& layer) {
   for (const Layer& l : exr_layers()) {
     if (l.name != layer) continue;
     if (!l.present(img))
       throw Error(fmt::format(
           "layer \"{}\" is not written for this scene (its pass is off); choose another layer", layer));
-    count = uint32_t(l.channels.size());
     const size_t pixels = size_t(img.width) * img.height;
-    std::vector<float> v(pixels * count);
+    std::vector<float> v(pixels * 3);
     for (size_t p = 0; p < pixels; ++p)
-      for (uint32_t c = 0; c < count; ++c) v[p * count + c] = l.value(img, p, int(c));
+      for (int c = 0; c < 3; ++c) v[p * 3 + size_t(c)] = l.value(img, p, c);
     return v;
   }
   throw Error(fmt::format("no layer \"{}\"", layer));
@@ -496,7 +497,8 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
     }
     const std::string run_dir = (fs::path(dir) / "runs" / run.id).string();
     if (spec.save_images != "none") ensure_writable_dir(run_dir);
-    std::vector<std::vector<float>> test_frames, ref_frames;
+    std::vector<std::vector<float>> test_frames;
+    std::vector<LayerImage> ref_frames;
     json per_frame = json::array(), memory, images = json::array();
     size_t bad = 0;
     FrameLoop loop;
@@ -504,19 +506,11 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
       bad += count_nonfinite(img);
       json m = {{"frame", f}};
       if (spec.reference) {
-        uint32_t count = 3;
-        test_frames.push_back(layer_values(img, spec.layer, count));
-        ExrImage ref = read_exr(reference_frame_path(ref_dir, f));
-        std::vector<float> rgb(size_t(ref.width) * ref.height * 3);
-        const char* names[3] = {"R", "G", "B"};
-        for (int c = 0; c < 3; ++c) {
-          const auto& plane = ref.channel(names[c]);
-          for (size_t p = 0; p < plane.size(); ++p) rgb[p * 3 + c] = plane[p];
-        }
-        ref_frames.push_back(std::move(rgb));
+        test_frames.push_back(layer_values(img, spec.layer));
+        ref_frames.push_back(read_layer(reference_frame_path(ref_dir, f), ""));
         const size_t pixels = size_t(img.width) * img.height;
-        Channels x{test_frames.back().data(), pixels, 3, 0, 3}, y{ref_frames.back().data(), pixels, 3, 0, 3};
-        m.update(image_metrics(x, y, img.width, img.height));
+        Channels x{test_frames.back().data(), pixels, 3, 0, 3};
+        m.update(image_metrics(x, ref_frames.back().view(), img.width, img.height));
       }
       per_frame.push_back(m);
       if (spec.save_images == "all" || (spec.save_images == "last" && f == last)) {
@@ -530,7 +524,8 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
     // (lavapipe compiles there) and pipeline creation stay out of the run's timings.
     scene::Scene warm = s;
     warm.render.spp = 1;
-    const double pipeline_ms = render_frames(ctx, warm, first, first, FrameLoop{}, r).stats["pipeline_creation_ms"];
+    const double pipeline_ms =
+        render_frames(ctx, warm, first, first, FrameLoop{}, r).stats["pipeline_creation_ms"];
     ctx.ledger().reset_peak();
     RunSummary rs = render_frames(ctx, s, first, last, loop, r);
     const int frames = last - first + 1;
@@ -573,7 +568,7 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
         std::vector<Channels> x, y;
         for (int f = 0; f < frames; ++f) {
           x.push_back({test_frames[size_t(f)].data(), pixels, 3, 0, 3});
-          y.push_back({ref_frames[size_t(f)].data(), pixels, 3, 0, 3});
+          y.push_back(ref_frames[size_t(f)].view());
         }
         row["temporal"] = temporal(x, y).to_json();
       }

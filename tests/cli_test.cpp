@@ -11,26 +11,15 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "haze_cli.hpp"
 #include "render/output.hpp"
 
 namespace {
 
 namespace fs = std::filesystem;
 
-struct Result {
-  int code;
-  std::string out;
-};
-
-Result run(const std::string& args) {
-  std::string cmd = fmt::format("{} {} 2>&1", HAZE_BIN, args);
-  FILE* p = popen(cmd.c_str(), "r");
-  std::string out;
-  std::array<char, 4096> buf{};
-  while (size_t n = fread(buf.data(), 1, buf.size(), p)) out.append(buf.data(), n);
-  int status = pclose(p);
-  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, out};
-}
+using haze::test::Result;
+using haze::test::run;
 
 class Cli : public ::testing::Test {
  protected:

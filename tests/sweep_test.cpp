@@ -19,6 +19,7 @@
 #include <set>
 #include <thread>
 
+#include "haze_cli.hpp"
 #include "render/output.hpp"
 #include "render/reference.hpp"
 #include "temp_dir.hpp"
@@ -29,20 +30,8 @@ namespace fs = std::filesystem;
 using haze::test::TempDir;
 using nlohmann::json;
 
-struct Result {
-  int code;
-  std::string out;
-};
-
-Result run(const std::string& args) {
-  std::string cmd = fmt::format("{} {} 2>&1", HAZE_BIN, args);
-  FILE* p = popen(cmd.c_str(), "r");
-  std::string out;
-  std::array<char, 4096> buf{};
-  while (size_t n = fread(buf.data(), 1, buf.size(), p)) out.append(buf.data(), n);
-  int status = pclose(p);
-  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, out};
-}
+using haze::test::Result;
+using haze::test::run;
 
 std::vector<std::string> lines(const fs::path& p) {
   std::ifstream f(p);
