@@ -12,15 +12,15 @@
 #include <memory>
 
 #include "bench/bench.hpp"
+#include "eval/compare.hpp"
+#include "eval/reference.hpp"
+#include "eval/report.hpp"
+#include "eval/sweep.hpp"
 #include "gpu/gpu.hpp"
-#include "render/compare.hpp"
 #include "render/denoise_sequence.hpp"
 #include "render/output.hpp"
-#include "render/reference.hpp"
 #include "render/renderer.hpp"
-#include "render/report.hpp"
 #include "render/run.hpp"
-#include "render/sweep.hpp"
 #include "scene/animation.hpp"
 #include "scene/scene.hpp"
 #include "vdb/vdb.h"
@@ -119,7 +119,7 @@ int run_render(const std::string& scene_path, const std::string& out, int spp, c
 
 int run_reference(const std::string& scene_path, const std::string& out, const std::string& frames,
                   const std::string& size, const std::vector<std::string>& sets,
-                  const render::ReferenceOptions& o, const gpu::ContextOptions& co) {
+                  const eval::ReferenceOptions& o, const gpu::ContextOptions& co) {
   if (o.min_spp > o.max_spp)
     throw std::runtime_error(
         fmt::format("--min-spp {} is above --max-spp {}; lower it", o.min_spp, o.max_spp));
@@ -128,12 +128,12 @@ int run_reference(const std::string& scene_path, const std::string& out, const s
   render::ensure_writable_dir(out);
   gpu::Context ctx(co);
   fmt::print(stderr, "device: {} ({})\n", ctx.device_name(), ctx.driver_info());
-  render::ReferenceHooks hooks;
-  hooks.on_check = [&](const render::ReferenceFrame& f) {
+  eval::ReferenceHooks hooks;
+  hooks.on_check = [&](const eval::ReferenceFrame& f) {
     fmt::print(stderr, "frame {}: {} spp, error {:.4g} at quantile {} (max {:.4g}), target {}\n", f.frame,
                f.spp, f.error_quantile, o.quantile, f.error_max, o.target);
   };
-  hooks.on_frame = [&](const render::ReferenceFrame& f, bool cached) {
+  hooks.on_frame = [&](const eval::ReferenceFrame& f, bool cached) {
     if (cached)
       fmt::print(stderr, "frame {}: up to date ({} spp)\n", f.frame, f.spp);
     else if (!f.converged)
@@ -141,32 +141,32 @@ int run_reference(const std::string& scene_path, const std::string& out, const s
                  f.spp);
   };
   std::unique_ptr<render::Renderer> r;
-  nlohmann::json info = render::make_reference(ctx, s, first, last, out, o, hooks, r);
+  nlohmann::json info = eval::make_reference(ctx, s, first, last, out, o, hooks, r);
   fmt::print(stderr, "wrote {} (key {})\n", out, info["key"].get<std::string>());
   return ctx.validation_messages() > 0 ? 3 : 0;
 }
 
 int run_sweep(const std::string& file, const std::string& out, const std::string& shard_text, bool merge,
               bool list, const std::vector<std::string>& sets, const gpu::ContextOptions& co) {
-  render::SweepSpec spec = render::load_sweep(file, sets);
-  render::Shard shard = shard_text.empty() ? render::Shard{} : render::parse_shard(shard_text);
+  eval::SweepSpec spec = eval::load_sweep(file, sets);
+  eval::Shard shard = shard_text.empty() ? eval::Shard{} : eval::parse_shard(shard_text);
   if (merge) {
-    nlohmann::json m = render::merge_sweep(spec, out);
+    nlohmann::json m = eval::merge_sweep(spec, out);
     fmt::print(stderr, "merged {} runs from {} folders into {}/results.jsonl and results.csv\n",
                m["merged"].get<size_t>(), m["sources"].get<size_t>(), out);
     return 0;
   }
   if (list) {
-    std::vector<render::Run> runs = render::expand(spec);
-    render::check_runs(spec, runs);
-    for (const auto& r : render::shard_runs(runs, shard))
+    std::vector<eval::Run> runs = eval::expand(spec);
+    eval::check_runs(spec, runs);
+    for (const auto& r : eval::shard_runs(runs, shard))
       fmt::print("{}\n", nlohmann::json{{"index", r.index}, {"run", r.id}, {"settings", r.settings}}.dump());
     return 0;
   }
   gpu::Context ctx(co);
   fmt::print(stderr, "device: {} ({})\n", ctx.device_name(), ctx.driver_info());
   const Progress bar{"runs"};
-  render::SweepHooks hooks;
+  eval::SweepHooks hooks;
   hooks.log = [&](const std::string& line) { fmt::print(stderr, "{}{}\n", bar.tty ? "\r\033[K" : "", line); };
   hooks.progress = [&](size_t done, size_t total, const nlohmann::json* row) {
     std::string last;
@@ -181,8 +181,8 @@ int run_sweep(const std::string& file, const std::string& out, const std::string
     else if (row)
       fmt::print(stderr, "{}  {}\n", bar.line(done, total), last);
   };
-  int code = render::run_sweep(ctx, spec, out, shard, hooks);
-  fmt::print(stderr, "wrote {}/results.jsonl and results.csv\n", render::shard_dir(out, shard));
+  int code = eval::run_sweep(ctx, spec, out, shard, hooks);
+  fmt::print(stderr, "wrote {}/results.jsonl and results.csv\n", eval::shard_dir(out, shard));
   if (ctx.validation_messages() > 0) {
     fmt::print(stderr, "haze: {} Vulkan validation messages\n", ctx.validation_messages());
     return 3;
@@ -250,7 +250,7 @@ int main(int argc, char** argv) {
       "render a converged reference: until the per-pixel relative standard error is below a target");
   std::string ref_scene, ref_out, ref_frames, ref_size;
   std::vector<std::string> ref_sets;
-  render::ReferenceOptions ro;
+  eval::ReferenceOptions ro;
   ref->add_option("scene", ref_scene, "scene JSON file")->required();
   ref->add_option("--out", ref_out, "output directory (frame_NNNN.exr, reference.json)")->required();
   ref->add_option("--target", ro.target, "per-pixel relative standard error to reach")
@@ -280,7 +280,7 @@ int main(int argc, char** argv) {
 
   auto* report = app.add_subcommand("report", "an HTML report (and PNG figures) of a sweep's results");
   std::string rep_dir;
-  render::ReportOptions rep;
+  eval::ReportOptions rep;
   report->add_option("dir", rep_dir, "the sweep's --out directory")->required();
   report->add_option("--out", rep.out, "HTML file (default DIR/report.html; figures in <name>_figures/)");
   report->add_option("--metric", rep.metric, "error axis: relmse, smape, mse, flip_ldr, flip_hdr");
@@ -376,13 +376,13 @@ int main(int argc, char** argv) {
     if (*ref) return run_reference(ref_scene, ref_out, ref_frames, ref_size, ref_sets, ro, co);
     if (*sweep) return run_sweep(sw_file, sw_out, sw_shard, sw_merge, sw_list, sw_sets, co);
     if (*report) {
-      fmt::print("wrote {}\n", render::write_report(rep_dir, rep));
+      fmt::print("wrote {}\n", eval::write_report(rep_dir, rep));
       return 0;
     }
     if (*bench) return haze::bench::run(bo, co);
     if (*cmp) {
-      nlohmann::json j = render::compare_paths(cmp_ref, cmp_test, cmp_layer, cmp_flip_map);
-      fmt::print("{}", cmp_json ? j.dump(2) + "\n" : render::format_comparison(j));
+      nlohmann::json j = eval::compare_paths(cmp_ref, cmp_test, cmp_layer, cmp_flip_map);
+      fmt::print("{}", cmp_json ? j.dump(2) + "\n" : eval::format_comparison(j));
       return 0;
     }
     if (*dn) {

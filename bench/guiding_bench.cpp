@@ -6,7 +6,7 @@
 #include <cmath>
 #include <numeric>
 
-#include "render/metrics.hpp"
+#include "eval/metrics.hpp"
 #include "render/renderer.hpp"
 #include "scene/scene.hpp"
 
@@ -51,11 +51,11 @@ json shaft_scene(int w, int h, bool vdb, bool guiding, uint32_t seed) {
   return j;
 }
 
-render::Channels volume_of(const render::Image& img) {
+eval::Channels volume_of(const render::Image& img) {
   return {img.data.data(), size_t(img.width) * img.height, glsl::OUT_STRIDE, glsl::OUT_VOL};
 }
 
-render::Channels denoised_volume_of(const render::Image& img) {
+eval::Channels denoised_volume_of(const render::Image& img) {
   return {&img.volume_denoised->colour[0].x, size_t(img.width) * img.height, 3, 0};
 }
 
@@ -98,8 +98,8 @@ json equal_time(gpu::Context& ctx, const GuidingBenchOptions& o, bool vdb) {
     u.add_samples(o.spp);
     render::Renderer g(ctx, make(shaft_scene(w, h, vdb, true, uint32_t(seed))));
     g.add_samples(spp_g);
-    err_u.push_back(render::relmse(volume_of(u.resolve()), volume_of(ref_img)));
-    err_g.push_back(render::relmse(volume_of(g.resolve()), volume_of(ref_img)));
+    err_u.push_back(eval::relmse(volume_of(u.resolve()), volume_of(ref_img)));
+    err_g.push_back(eval::relmse(volume_of(g.resolve()), volume_of(ref_img)));
     ratios.push_back(err_u.back() / err_g.back());
   }
   return {{"scene", vdb ? "vdb shaft" : "haze shaft"},
@@ -157,7 +157,7 @@ json temporal(gpu::Context& ctx, const GuidingBenchOptions& o) {
       r->add_samples(o.sequence_spp);
       render::Image img = r->resolve();
       // The first frames have no history yet; the error that motion vectors change is the steady one.
-      if (f >= 2) errors.push_back(render::relmse(denoised_volume_of(img), volume_of(refs[size_t(f)])));
+      if (f >= 2) errors.push_back(eval::relmse(denoised_volume_of(img), volume_of(refs[size_t(f)])));
     }
     mean_err[motion] = std::accumulate(errors.begin(), errors.end(), 0.0) / double(errors.size());
     out[motion] = {{"relmse_per_frame", errors}, {"relmse_mean", mean_err[motion]}};

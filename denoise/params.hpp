@@ -6,7 +6,7 @@
 
 #include <string>
 
-#include "scene/params.hpp"
+#include "reflect/params.hpp"
 
 namespace haze::denoise {
 
@@ -73,8 +73,8 @@ struct DenoiseSettings {
 
 template <class V>
 void reflect(V& v, SvgfParams& p) {
-  using scene::Choices;
-  using scene::Range;
+  using reflection::Choices;
+  using reflection::Range;
   v.field("enabled", p.enabled, "run this instance (it runs only where the scene has its signal)");
   v.field("mode", p.mode, Choices{"adaptive", "classic"},
           "adaptive: percentile-based SVGF; classic: Schied et al. 2017 with its constants (alpha 0.2, "
@@ -115,7 +115,7 @@ void reflect(V& v, SvgfParams& p) {
   v.field("taa_gamma", p.taa_gamma, Range::at_least(0), "TAA: gamma of the variance clamp");
 }
 
-inline void validate(SvgfParams& p, const scene::Where& w) {
+inline void validate(SvgfParams& p, const reflection::Where& w) {
   if (!(p.adapt_low <= p.adapt_up))
     w.fail("adapt_up", fmt::format("must be >= adapt_low ({}), got {}", p.adapt_low, p.adapt_up));
   if (!(p.firefly_low <= p.firefly_up))
@@ -126,7 +126,7 @@ template <class V>
 void reflect(V& v, DenoiseSettings& d) {
   v.field("surface", d.surface, "the surface instance (demodulated surface signal, surface G-buffer)");
   v.field("volume", d.volume, "the volume instance (light shafts; normal rejection off, weak depth terms)");
-  v.field("volume_motion", d.volume_motion, scene::Choices{"virtual_points", "surface"},
+  v.field("volume_motion", d.volume_motion, reflection::Choices{"virtual_points", "surface"},
           "motion vectors of the volume instance: the virtual points' or the surface G-buffer's");
 }
 

@@ -3,7 +3,7 @@
 // --set, the docs and stats.json all come from reflect() below.
 #pragma once
 
-#include "scene/params.hpp"
+#include "reflect/params.hpp"
 
 namespace haze::guiding {
 
@@ -27,7 +27,7 @@ inline constexpr int kMaxGuideCandidates = 8;
 
 template <class V>
 void reflect(V& v, GuidingParams& p) {
-  using scene::Range;
+  using reflection::Range;
   v.field("enabled", p.enabled,
           "learn and sample distances along camera rays (only where the scene has media and lights)");
   v.field("probability", p.probability, Range{0, 0.99},

@@ -11,6 +11,9 @@
 
 namespace haze::scene {
 
+// The reflection machinery (reflect/params.hpp) drives reading, writing and overriding scenes.
+using namespace reflection;
+
 using nlohmann::json;
 namespace fs = std::filesystem;
 
@@ -88,10 +91,10 @@ void walk(const Segments& segs, size_t pos, T& value, Target& t) {
     FieldFinder finder(segs, pos, t);
     reflect(finder, value);
     if (!finder.matched) {
-      detail::KeyList keys;
+      reflection::detail::KeyList keys;
       reflect(keys, value);
       t.error = fmt::format("{}: {}", join_path(here, segs[pos]),
-                            detail::unknown_key_message(segs[pos], keys.names));
+                            reflection::detail::unknown_key_message(segs[pos], keys.names));
       return;
     }
     if constexpr (Validated<T>) {
@@ -133,7 +136,7 @@ void walk(const Segments& segs, size_t pos, T& value, Target& t) {
   } else if constexpr (std::is_same_v<T, json> || std::is_same_v<T, std::optional<json>>) {
     t.error = fmt::format("{} is free-form JSON and cannot be animated", t.path);
   } else {
-    std::string type = detail::type_name<T>();
+    std::string type = reflection::detail::type_name<T>();
     const char* article = std::string_view("aeiou").find(type[0]) == std::string_view::npos ? "a" : "an";
     t.error =
         fmt::format("{} is {} {}; only numbers and [x, y, z] vectors can be animated", t.path, article, type);
@@ -171,7 +174,7 @@ std::vector<Compiled> compile(Scene& s, const ReadContext& ctx) {
     validate(track, Where(ctx, at));
     const std::string path_at = at + ".path";
     Segments segs;
-    if (!detail::split_path(track.path, segs)) {
+    if (!reflection::detail::split_path(track.path, segs)) {
       ctx.fail(path_at,
                fmt::format("\"{}\" has an empty part; write it as a.b.c, e.g. camera.position", track.path));
     }
@@ -195,9 +198,11 @@ std::vector<Compiled> compile(Scene& s, const ReadContext& ctx) {
       const std::string value_at = fmt::format("{}.keys[{}].value", at, k);
       c.frames.push_back(track.keys[k].frame);
       if (c.target.vec) {
-        c.values.push_back(detail::read_vec3(track.keys[k].value, c.target.constraint, ctx, value_at));
+        c.values.push_back(
+            reflection::detail::read_vec3(track.keys[k].value, c.target.constraint, ctx, value_at));
       } else {
-        double x = detail::read_number(track.keys[k].value, c.target.constraint, true, ctx, value_at);
+        double x =
+            reflection::detail::read_number(track.keys[k].value, c.target.constraint, true, ctx, value_at);
         c.values.emplace_back(static_cast<float>(x), 0.f, 0.f);
       }
     }

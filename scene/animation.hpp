@@ -7,7 +7,7 @@
 #include <string_view>
 #include <utility>
 
-#include "scene/params.hpp"
+#include "reflect/params.hpp"
 #include "scene/scene.hpp"
 
 namespace haze::scene {

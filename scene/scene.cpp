@@ -15,6 +15,9 @@
 
 namespace haze::scene {
 
+// The reflection machinery (reflect/params.hpp) drives reading, writing and overriding scenes.
+using namespace reflection;
+
 using nlohmann::json;
 namespace fs = std::filesystem;
 

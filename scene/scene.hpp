@@ -12,9 +12,19 @@
 
 #include "denoise/params.hpp"
 #include "guiding/params.hpp"
-#include "scene/params.hpp"
+#include "reflect/params.hpp"
 
 namespace haze::scene {
+
+// The scene is read, written, overridden and described through reflect/params.hpp; its errors are
+// reflection::Error (one line naming the file and key).
+using reflection::Choices;
+using reflection::Error;
+using reflection::format_params;
+using reflection::ParamInfo;
+using reflection::Range;
+using reflection::ReadContext;
+using reflection::Where;
 
 // Frames are numbered 0..kMaxFrame (keys, render.frames, --frames).
 inline constexpr int kMaxFrame = 9'999'999;

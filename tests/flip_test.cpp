@@ -1,6 +1,6 @@
-// FLIP (render/flip.cpp) on generated images: zero for identical images, symmetry, monotonicity in the
+// FLIP (eval/flip.cpp) on generated images: zero for identical images, symmetry, monotonicity in the
 // added error, values worked out by hand from the papers' formulas, and the error map.
-#include "render/flip.hpp"
+#include "eval/flip.hpp"
 
 #include <gtest/gtest.h>
 
@@ -9,7 +9,7 @@
 #include <stdexcept>
 #include <vector>
 
-namespace haze::render {
+namespace haze::eval {
 namespace {
 
 constexpr int W = 40, H = 32;
@@ -168,4 +168,4 @@ TEST(Flip, RejectsWhatItCannotCompare) {
 }
 
 }  // namespace
-}  // namespace haze::render
+}  // namespace haze::eval

@@ -1,12 +1,12 @@
 // Error metrics on small images whose values are worked out by hand.
-#include "render/metrics.hpp"
+#include "eval/metrics.hpp"
 
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <vector>
 
-namespace haze::render {
+namespace haze::eval {
 namespace {
 
 Channels one_channel(const std::vector<float>& v) {
@@ -52,4 +52,4 @@ TEST(Metrics, TemporalStability) {
 }
 
 }  // namespace
-}  // namespace haze::render
+}  // namespace haze::eval

@@ -409,18 +409,20 @@ void reflect(V& v, Params& p) {
 TEST(Reflection, WorksForOtherStructs) {
   demo::Params p;
   hs::ReadContext ctx{"denoise.json", {}};
-  hs::read_params(json{{"sigma", 2.0}, {"inner", {{"weight", 0.25}}}}, p, ctx, "denoise.volume");
+  haze::reflection::read_params(json{{"sigma", 2.0}, {"inner", {{"weight", 0.25}}}}, p, ctx,
+                                "denoise.volume");
   EXPECT_DOUBLE_EQ(p.sigma, 2.0);
   ASSERT_TRUE(p.inner);
   EXPECT_DOUBLE_EQ(p.inner->weight, 0.25);
-  EXPECT_EQ(hs::write_params(p), (json{{"enabled", true}, {"sigma", 2.0}, {"inner", {{"weight", 0.25}}}}));
+  EXPECT_EQ(haze::reflection::write_params(p),
+            (json{{"enabled", true}, {"sigma", 2.0}, {"inner", {{"weight", 0.25}}}}));
   expect_error(
       [&] {
-        hs::read_params(json{{"sigma", 0}}, p, ctx, "denoise.volume");
+        haze::reflection::read_params(json{{"sigma", 0}}, p, ctx, "denoise.volume");
       },
       {"denoise.json: denoise.volume.sigma: must be > 0, got 0"});
   json j;
-  EXPECT_EQ(hs::apply_override_to<demo::Params>(j, "inner.weight=0.75", "cli"), "inner.weight");
+  EXPECT_EQ(haze::reflection::apply_override_to<demo::Params>(j, "inner.weight=0.75", "cli"), "inner.weight");
   EXPECT_EQ(j, (json{{"inner", {{"weight", 0.75}}}}));
 }
 

@@ -1,7 +1,7 @@
 // The research workflow as a user runs it: `haze reference`, `haze sweep` (bad files fail before any run,
 // expansion, sharding covers every run once, resume after a kill loses and duplicates nothing, merge) and
 // `haze report` (opens in headless Chromium without script errors and shows its plots).
-#include "render/sweep.hpp"
+#include "eval/sweep.hpp"
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
@@ -19,9 +19,9 @@
 #include <set>
 #include <thread>
 
+#include "eval/reference.hpp"
 #include "haze_cli.hpp"
 #include "render/output.hpp"
-#include "render/reference.hpp"
 #include "temp_dir.hpp"
 
 namespace {
@@ -69,7 +69,7 @@ std::set<std::string> ids_of(const std::vector<std::string>& rows) {
 
 std::set<std::string> expected_ids(const fs::path& sweep) {
   std::set<std::string> ids;
-  for (const auto& r : haze::render::expand(haze::render::load_sweep(sweep.string()))) ids.insert(r.id);
+  for (const auto& r : haze::eval::expand(haze::eval::load_sweep(sweep.string()))) ids.insert(r.id);
   return ids;
 }
 
@@ -78,8 +78,8 @@ std::set<std::string> expected_ids(const fs::path& sweep) {
 TEST(SweepFile, ExpandsCartesianZipAndEachWithSeeds) {
   TempDir t("haze-sweep");
   t.write("scene.json", kScene);
-  auto sp = haze::render::load_sweep(t.write("s.json", kSweep).string());
-  auto runs = haze::render::expand(sp);
+  auto sp = haze::eval::load_sweep(t.write("s.json", kSweep).string());
+  auto runs = haze::eval::expand(sp);
   ASSERT_EQ(runs.size(), 8u);  // 2 x 2 settings x 2 seeds; the last axis, then the seed, change fastest
   EXPECT_EQ(runs[0].settings,
             (json{{"render.spp", 1}, {"render.equiangular_probability", 0}, {"render.seed", 1}}));
@@ -92,23 +92,22 @@ TEST(SweepFile, ExpandsCartesianZipAndEachWithSeeds) {
   EXPECT_EQ(ids.size(), runs.size());
   // Ids depend on the settings only: the same files elsewhere give the same ids.
   t.write("copy/scene.json", kScene);
-  EXPECT_EQ(haze::render::expand(haze::render::load_sweep(t.write("copy/s.json", kSweep).string()))[5].id,
+  EXPECT_EQ(haze::eval::expand(haze::eval::load_sweep(t.write("copy/s.json", kSweep).string()))[5].id,
             runs[5].id);
 
   json zip = json::parse(kSweep);
   zip["combine"] = "zip";
-  EXPECT_EQ(haze::render::expand(haze::render::load_sweep(t.write("z.json", zip.dump()).string())).size(),
-            4u);
+  EXPECT_EQ(haze::eval::expand(haze::eval::load_sweep(t.write("z.json", zip.dump()).string())).size(), 4u);
   json each = zip;
   each["combine"] = "each";
   each["axes"][1]["values"] = {0, 0.25, 0.5};
-  auto e = haze::render::expand(haze::render::load_sweep(t.write("e.json", each.dump()).string()));
+  auto e = haze::eval::expand(haze::eval::load_sweep(t.write("e.json", each.dump()).string()));
   ASSERT_EQ(e.size(), (2u + 3u) * 2u);
   EXPECT_FALSE(e[0].settings.contains("render.equiangular_probability"));  // other axes stay at base
   json multi = json::parse(kSweep);
   multi["axes"] =
       json::parse(R"([{"paths": ["render.width", "render.height"], "values": [[8, 6], [16, 12]]}])");
-  auto m = haze::render::expand(haze::render::load_sweep(t.write("m.json", multi.dump()).string()));
+  auto m = haze::eval::expand(haze::eval::load_sweep(t.write("m.json", multi.dump()).string()));
   ASSERT_EQ(m.size(), 4u);
   EXPECT_EQ(m[2].settings["render.width"], 16);
   EXPECT_EQ(m[2].settings["render.height"], 12);
@@ -120,13 +119,12 @@ TEST(SweepFile, ShardsCoverEveryRunExactlyOnce) {
   json j = json::parse(kSweep);
   j["axes"].push_back({{"path", "render.max_depth"}, {"values", {1, 2, 3}}});
   const fs::path f = t.write("s.json", j.dump());
-  auto runs = haze::render::expand(haze::render::load_sweep(f.string()));
+  auto runs = haze::eval::expand(haze::eval::load_sweep(f.string()));
   ASSERT_EQ(runs.size(), 24u);
   for (int n : {1, 2, 3, 5, 7, 24, 30}) {
     std::multiset<std::string> seen;
     for (int i = 0; i < n; ++i)
-      for (const auto& r :
-           haze::render::shard_runs(runs, haze::render::parse_shard(fmt::format("{}/{}", i, n))))
+      for (const auto& r : haze::eval::shard_runs(runs, haze::eval::parse_shard(fmt::format("{}/{}", i, n))))
         seen.insert(r.id);
     EXPECT_EQ(seen.size(), runs.size()) << n << " shards";
     for (const auto& r : runs) EXPECT_EQ(seen.count(r.id), 1u) << n << " shards, run " << r.index;
@@ -143,7 +141,7 @@ TEST(SweepFile, ShardsCoverEveryRunExactlyOnce) {
   EXPECT_EQ(listed.size(), runs.size());
   for (const auto& r : runs) EXPECT_EQ(listed.count(r.id), 1u);
   for (const char* bad : {"3/3", "-1/2", "1/0", "x", "1/2/3"})
-    EXPECT_THROW(haze::render::parse_shard(bad), haze::render::Error) << bad;
+    EXPECT_THROW(haze::eval::parse_shard(bad), haze::render::Error) << bad;
 }
 
 TEST(SweepFile, BadFilesFailBeforeAnyRun) {
@@ -207,15 +205,15 @@ TEST(SweepFile, TornLastRowIsDroppedAndCsvHasEveryColumn) {
               {"metrics", {{"relmse", 0.25}}},
               {"nonfinite", 0}};
   const fs::path p = t.write("results.jsonl", row.dump() + "\n" + row.dump().substr(0, 40));
-  auto rows = haze::render::read_results(p.string());
+  auto rows = haze::eval::read_results(p.string());
   ASSERT_EQ(rows.size(), 1u);
   EXPECT_EQ(lines(p).size(), 1u);  // rewritten without the torn line
-  std::string csv = haze::render::results_csv(rows);
+  std::string csv = haze::eval::results_csv(rows);
   EXPECT_EQ(csv,
             "run,index,frames,samples,render.spp,gpu_ms_per_frame,memory_mb,memory_peak_mb,relmse,nonfinite,"
             "pass_trace_ms,mem_outputs_mb\na,0,0:0,4,4,2.5,2.0,3.0,0.25,0,2.0,1.0\n");
   t.write("mid.jsonl", row.dump() + "\nnot json\n" + row.dump() + "\n");
-  EXPECT_THROW(haze::render::read_results((t.path() / "mid.jsonl").string()), haze::render::Error);
+  EXPECT_THROW(haze::eval::read_results((t.path() / "mid.jsonl").string()), haze::render::Error);
 }
 
 TEST(SweepFile, CountsNonFiniteValuesInEveryLayer) {
@@ -224,16 +222,16 @@ TEST(SweepFile, CountsNonFiniteValuesInEveryLayer) {
   img.height = 1;
   img.data.assign(2 * haze::glsl::OUT_STRIDE, 0.5f);
   img.gbuffer.assign(2 * haze::glsl::G_STRIDE, 0.f);
-  EXPECT_EQ(haze::render::count_nonfinite(img), 0u);
+  EXPECT_EQ(haze::eval::count_nonfinite(img), 0u);
   // Each value, wherever it is, is found (in every layer that reads it).
   for (size_t i : {size_t(haze::glsl::OUT_STRIDE + haze::glsl::OUT_VOL + 1), size_t(haze::glsl::OUT_VAR)}) {
     auto bad = img;
     bad.data[i] = NAN;
-    EXPECT_GE(haze::render::count_nonfinite(bad), 1u) << i;
+    EXPECT_GE(haze::eval::count_nonfinite(bad), 1u) << i;
   }
   auto bad = img;
   bad.gbuffer[haze::glsl::G_MOTION] = -INFINITY;
-  EXPECT_GE(haze::render::count_nonfinite(bad), 1u);
+  EXPECT_GE(haze::eval::count_nonfinite(bad), 1u);
 }
 
 // --- rendering ------------------------------------------------------------------------------------------
@@ -250,7 +248,7 @@ TEST(Reference, ConvergesToItsTargetAndIsCached) {
   EXPECT_TRUE(f0["converged"].get<bool>()) << info.dump();
   EXPECT_LE(f0["error_quantile"].get<double>(), 0.05);
   // The stored image has its variance, and its errors agree with what reference.json says.
-  haze::render::ExrImage img = haze::render::read_exr(haze::render::reference_frame_path(out, 0));
+  haze::render::ExrImage img = haze::render::read_exr(haze::eval::reference_frame_path(out, 0));
   const auto &R = img.channel("R"), &V = img.channel("variance.R");
   const double n = f0["spp"].get<double>();
   std::vector<double> e;
@@ -396,8 +394,8 @@ TEST(Sweep, StabilitySweepStaysFinite) {
   Result r = run(fmt::format("sweep {}/scenes/stability.sweep.json --out {}", HAZE_SOURCE_DIR, out.string()));
   ASSERT_EQ(r.code, 0) << r.out;
   const auto rows = lines(out / "results.jsonl");
-  EXPECT_EQ(rows.size(), haze::render::expand(haze::render::load_sweep(std::string(HAZE_SOURCE_DIR) +
-                                                                       "/scenes/stability.sweep.json"))
+  EXPECT_EQ(rows.size(), haze::eval::expand(haze::eval::load_sweep(std::string(HAZE_SOURCE_DIR) +
+                                                                   "/scenes/stability.sweep.json"))
                              .size());
   for (const auto& l : rows) {
     json row = json::parse(l);

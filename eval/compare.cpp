@@ -1,4 +1,4 @@
-#include "render/compare.hpp"
+#include "eval/compare.hpp"
 
 #include <fmt/format.h>
 
@@ -6,11 +6,11 @@
 #include <cmath>
 #include <filesystem>
 
-#include "render/flip.hpp"
-#include "render/metrics.hpp"
+#include "eval/flip.hpp"
+#include "eval/metrics.hpp"
 #include "render/output.hpp"
 
-namespace haze::render {
+namespace haze::eval {
 
 namespace fs = std::filesystem;
 
@@ -19,7 +19,7 @@ namespace {
 // One layer of an EXR as interleaved floats (channels in the reference's order).
 // The layer's channels in the order haze writes them (R, G, B; X, Y, Z), not the file's alphabetical one:
 // FLIP reads the first three as R, G, B.
-std::vector<std::string> layer_channels(const ExrImage& img, const std::string& layer) {
+std::vector<std::string> layer_channels(const render::ExrImage& img, const std::string& layer) {
   std::vector<std::string> out;
   for (const auto& c : img.channels) {
     bool base = c.find('.') == std::string::npos;
@@ -38,7 +38,7 @@ std::vector<std::string> layer_channels(const ExrImage& img, const std::string& 
   return out;
 }
 
-std::string layer_list(const ExrImage& img) {
+std::string layer_list(const render::ExrImage& img) {
   std::vector<std::string> names;
   for (const auto& c : img.channels) {
     size_t dot = c.rfind('.');
@@ -52,22 +52,23 @@ std::string layer_list(const ExrImage& img) {
 
 LayerImage load_layer(const std::string& path, const std::string& layer, const std::vector<std::string>* want,
                       bool require_finite) {
-  ExrImage img = read_exr(path);
+  render::ExrImage img = render::read_exr(path);
   LayerImage li;
   li.width = img.width;
   li.height = img.height;
   li.channels = want ? *want : layer_channels(img, layer);
   const std::string shown = layer.empty() ? "the base layer (R, G, B)" : fmt::format("layer '{}'", layer);
   if (li.channels.empty())
-    throw Error(fmt::format("{}: no {}; pass --layer with one of: {}", path, shown, layer_list(img)));
+    throw render::Error(fmt::format("{}: no {}; pass --layer with one of: {}", path, shown, layer_list(img)));
   const size_t pixels = size_t(img.width) * img.height;
   li.data.resize(pixels * li.channels.size());
   size_t nonfinite = 0;
   for (size_t c = 0; c < li.channels.size(); ++c) {
     auto it = std::find(img.channels.begin(), img.channels.end(), li.channels[c]);
     if (it == img.channels.end())
-      throw Error(fmt::format("{}: has no channel {} that the reference has; compare images with the same {}",
-                              path, li.channels[c], shown));
+      throw render::Error(
+          fmt::format("{}: has no channel {} that the reference has; compare images with the same {}", path,
+                      li.channels[c], shown));
     const auto& plane = img.data[size_t(it - img.channels.begin())];
     for (size_t p = 0; p < pixels; ++p) {
       li.data[p * li.channels.size() + c] = plane[p];
@@ -75,8 +76,8 @@ LayerImage load_layer(const std::string& path, const std::string& layer, const s
     }
   }
   if (nonfinite && require_finite)
-    throw Error(fmt::format("{}: {} has {} non-finite values (NaN or Inf); metrics need finite images", path,
-                            shown, nonfinite));
+    throw render::Error(fmt::format(
+        "{}: {} has {} non-finite values (NaN or Inf); metrics need finite images", path, shown, nonfinite));
   return li;
 }
 
@@ -86,7 +87,7 @@ std::vector<std::string> exr_files(const std::string& dir) {
     if (e.is_regular_file() && e.path().extension() == ".exr") files.push_back(e.path().string());
   std::sort(files.begin(), files.end());
   if (files.empty())
-    throw Error(fmt::format("{}: no .exr files; pass a folder of EXR frames or one .exr", dir));
+    throw render::Error(fmt::format("{}: no .exr files; pass a folder of EXR frames or one .exr", dir));
   return files;
 }
 
@@ -112,8 +113,8 @@ nlohmann::json metrics_of(const Channels& test, const Channels& ref, int width, 
 nlohmann::json write_flip_maps(const std::string& base, int width, int height,
                                const std::pair<std::vector<float>, std::vector<float>>& maps) {
   const std::string exr = base + ".exr", png = base + ".png";
-  write_exr_channels(exr, width, height, {{"flip_hdr.Y", &maps.first}, {"flip_ldr.Y", &maps.second}});
-  write_png_rgba8(png, width, height, magma_rgba8(maps.first));
+  render::write_exr_channels(exr, width, height, {{"flip_hdr.Y", &maps.first}, {"flip_ldr.Y", &maps.second}});
+  render::write_png_rgba8(png, width, height, magma_rgba8(maps.first));
   return {{"exr", exr}, {"png", png}};
 }
 
@@ -130,16 +131,16 @@ LayerImage read_layer(const std::string& path, const std::string& layer, bool re
 nlohmann::json compare_paths(const std::string& ref, const std::string& test, const std::string& layer,
                              const std::string& flip_map) {
   for (const auto& p : {ref, test})
-    if (!fs::exists(p)) throw Error(fmt::format("cannot open {}: no such file or folder", p));
+    if (!fs::exists(p)) throw render::Error(fmt::format("cannot open {}: no such file or folder", p));
   const bool seq = fs::is_directory(ref);
   if (seq != fs::is_directory(test))
-    throw Error(fmt::format("{} and {}: compare two .exr files or two folders of frames, not one of each",
-                            ref, test));
+    throw render::Error(fmt::format(
+        "{} and {}: compare two .exr files or two folders of frames, not one of each", ref, test));
   std::vector<std::string> refs = seq ? exr_files(ref) : std::vector<std::string>{ref};
   std::vector<std::string> tests = seq ? exr_files(test) : std::vector<std::string>{test};
   if (refs.size() != tests.size())
-    throw Error(fmt::format("{} has {} frames, {} has {}; sequences must have as many frames", test,
-                            tests.size(), ref, refs.size()));
+    throw render::Error(fmt::format("{} has {} frames, {} has {}; sequences must have as many frames", test,
+                                    tests.size(), ref, refs.size()));
   // --flip-map PATH: a folder for sequences; for one image PATH.exr and PATH.png (an .exr or .png
   // ending given with PATH is dropped).
   std::string map_base = flip_map;
@@ -147,10 +148,10 @@ nlohmann::json compare_paths(const std::string& ref, const std::string& test, co
     fs::path p(flip_map);
     if (!seq && (p.extension() == ".exr" || p.extension() == ".png"))
       map_base = p.replace_extension().string();
-    ensure_writable_dir(seq ? flip_map
-                        : fs::path(map_base).parent_path().empty()
-                            ? std::string(".")
-                            : fs::path(map_base).parent_path().string());
+    render::ensure_writable_dir(seq ? flip_map
+                                : fs::path(map_base).parent_path().empty()
+                                    ? std::string(".")
+                                    : fs::path(map_base).parent_path().string());
   }
   std::vector<LayerImage> r, t;
   nlohmann::json frames = nlohmann::json::array();
@@ -161,12 +162,13 @@ nlohmann::json compare_paths(const std::string& ref, const std::string& test, co
     t.push_back(load_layer(tests[f], layer, &r.back().channels, true));
     const LayerImage &rf = r.back(), &tf = t.back();
     if (tf.width != rf.width || tf.height != rf.height)
-      throw Error(fmt::format("{} is {}x{}, {} is {}x{}; compare images of one size", tests[f], tf.width,
-                              tf.height, refs[f], rf.width, rf.height));
+      throw render::Error(fmt::format("{} is {}x{}, {} is {}x{}; compare images of one size", tests[f],
+                                      tf.width, tf.height, refs[f], rf.width, rf.height));
     has_flip = flip_supports(uint32_t(rf.channels.size()));
     if (!flip_map.empty() && !has_flip)
-      throw Error(fmt::format("{}: --flip-map needs a layer of 1 or 3 channels, {} has {}", refs[f],
-                              layer.empty() ? "the base layer" : "layer " + layer, rf.channels.size()));
+      throw render::Error(fmt::format("{}: --flip-map needs a layer of 1 or 3 channels, {} has {}", refs[f],
+                                      layer.empty() ? "the base layer" : "layer " + layer,
+                                      rf.channels.size()));
     std::pair<std::vector<float>, std::vector<float>> maps;
     nlohmann::json m =
         metrics_of(tf.view(), rf.view(), rf.width, rf.height, flip_map.empty() ? nullptr : &maps);
@@ -235,4 +237,4 @@ std::string format_comparison(const nlohmann::json& j) {
   return s;
 }
 
-}  // namespace haze::render
+}  // namespace haze::eval

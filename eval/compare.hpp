@@ -7,9 +7,9 @@
 #include <string>
 #include <vector>
 
-#include "render/metrics.hpp"
+#include "eval/metrics.hpp"
 
-namespace haze::render {
+namespace haze::eval {
 
 // One layer of an EXR file, its channels interleaved per pixel in haze's order (R, G, B; X, Y, Z).
 struct LayerImage {
@@ -41,4 +41,4 @@ nlohmann::json compare_paths(const std::string& ref, const std::string& test, co
 // One line per image (or frame) and the means, for the terminal.
 std::string format_comparison(const nlohmann::json& j);
 
-}  // namespace haze::render
+}  // namespace haze::eval

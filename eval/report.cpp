@@ -1,4 +1,4 @@
-#include "render/report.hpp"
+#include "eval/report.hpp"
 
 #include <fmt/format.h>
 
@@ -11,16 +11,16 @@
 #include <map>
 #include <set>
 
-#include "render/compare.hpp"
-#include "render/metrics.hpp"
+#include "eval/compare.hpp"
+#include "eval/metrics.hpp"
+#include "eval/reference.hpp"
+#include "eval/sweep.hpp"
 #include "render/output.hpp"
-#include "render/reference.hpp"
-#include "render/sweep.hpp"
 #include "volume/glsl.hpp"
 
-namespace haze::render {
+namespace haze::eval {
 
-extern const char* const kReportPy;  // render/report.py, embedded by CMake
+extern const char* const kReportPy;  // eval/report.py, embedded by CMake
 
 namespace fs = std::filesystem;
 using nlohmann::json;
@@ -99,7 +99,7 @@ json report_data(const std::string& dir, const ReportOptions& o) {
     std::error_code ec;
     for (const auto& e : fs::directory_iterator(d, ec))
       shards |= e.path().filename().string().rfind("shard-", 0) == 0;
-    throw Error(
+    throw render::Error(
         shards ? fmt::format("{}: only shard results; join them with `haze sweep SWEEP.json --out {} "
                              "--merge` first",
                              dir, dir)
@@ -107,10 +107,11 @@ json report_data(const std::string& dir, const ReportOptions& o) {
   }
   static const std::set<std::string> metrics = {"relmse", "smape", "mse", "flip_ldr", "flip_hdr"};
   if (!metrics.count(o.metric))
-    throw Error(fmt::format("--metric {}: not one of relmse, smape, mse, flip_ldr, flip_hdr", o.metric));
+    throw render::Error(
+        fmt::format("--metric {}: not one of relmse, smape, mse, flip_ldr, flip_hdr", o.metric));
   std::vector<json> rows = read_results((d / "results.jsonl").string());
   if (rows.empty())
-    throw Error(fmt::format("{}: results.jsonl has no runs yet; let the sweep finish a run", dir));
+    throw render::Error(fmt::format("{}: results.jsonl has no runs yet; let the sweep finish a run", dir));
   json spec = json::object();
   if (std::ifstream f(d / "sweep.json"); f) spec = json::parse(f, nullptr, false);
   if (spec.is_discarded()) spec = json::object();
@@ -242,13 +243,13 @@ json prepare_images(const json& data, const fs::path& fig, const ReportOptions& 
     const size_t pixels = size_t(W) * H;
     const int k = int(cols.size());
     const std::string png = (fig / fmt::format("column_{}.png", k)).string();
-    write_png_rgba8(png, W, H, preview(x.data, pixels));
+    render::write_png_rgba8(png, W, H, preview(x.data, pixels));
     json col = {{"label", (*g)["short"]}, {"png", png}};
     if (g->contains("reference_image")) {
       LayerImage r = read_layer((*g)["reference_image"].get<std::string>(), "");
       if (ref_path.empty()) {
         ref_path = (fig / "reference.png").string();
-        write_png_rgba8(ref_path, W, H, preview(r.data, pixels));
+        render::write_png_rgba8(ref_path, W, H, preview(r.data, pixels));
       }
       // Per-pixel relMSE, the mean over R, G, B.
       std::vector<float> e(pixels);
@@ -260,7 +261,7 @@ json prepare_images(const json& data, const fs::path& fig, const ReportOptions& 
         mean += e[p] / double(pixels);
       }
       const std::string ep = (fig / fmt::format("column_{}.f32", k)).string();
-      write_text(ep, std::string(reinterpret_cast<const char*>(e.data()), e.size() * 4));
+      render::write_text(ep, std::string(reinterpret_cast<const char*>(e.data()), e.size() * 4));
       col["error"] = ep;
       col["mean_error"] = mean;
       errs.push_back(std::move(e));
@@ -302,13 +303,13 @@ std::string write_report(const std::string& dir, const ReportOptions& o) {
   json data = report_data(dir, o);
   const std::string html_path = o.out.empty() ? (fs::path(dir) / "report.html").string() : o.out;
   const fs::path fig = fs::path(html_path).parent_path() / (fs::path(html_path).stem().string() + "_figures");
-  ensure_writable_dir(fig.string());
+  render::ensure_writable_dir(fig.string());
   data["figures_dir"] = fig.string();
   data["metric_map"] = "relMSE per pixel";
   json images = prepare_images(data, fig, o);
   if (!images.is_null()) data["images"] = images;
   const std::string data_path = (fig / "data.json").string();
-  write_json(data_path, data);
+  render::write_json(data_path, data);
 
   // matplotlib draws; the script comes from the binary so that the report needs no source tree.
   // Debian's python3 (with Debian's matplotlib), not whichever python3 comes first on PATH; $HAZE_PYTHON
@@ -317,14 +318,14 @@ std::string write_report(const std::string& dir, const ReportOptions& o) {
   const std::string python = env && *env ? env : "/usr/bin/python3";
   const std::string cmd = fmt::format("'{}' - '{}' > '{}'", python, data_path, (fig / "made.json").string());
   FILE* py = ::popen(cmd.c_str(), "w");
-  if (!py) throw Error("cannot start python3 for the report's plots; run scripts/setup.sh");
+  if (!py) throw render::Error("cannot start python3 for the report's plots; run scripts/setup.sh");
   std::fputs(kReportPy, py);
   if (::pclose(py) != 0)
-    throw Error(
+    throw render::Error(
         "the report's plotting script failed (python3 with matplotlib and numpy; run scripts/setup.sh), "
         "see its message above");
   json made = json::parse(read_file((fig / "made.json").string()), nullptr, false);
-  if (made.is_discarded()) throw Error("the report's plotting script printed no figure list");
+  if (made.is_discarded()) throw render::Error("the report's plotting script printed no figure list");
 
   std::string h;
   h += "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">\n";
@@ -404,8 +405,8 @@ std::string write_report(const std::string& dir, const ReportOptions& o) {
       "asc?r:-r;});"
       "rs.forEach(function(r){tb.appendChild(r);});});});\n"
       "</script>\n</body></html>\n";
-  write_text(html_path, h);
+  render::write_text(html_path, h);
   return html_path;
 }
 
-}  // namespace haze::render
+}  // namespace haze::eval

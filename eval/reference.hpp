@@ -13,7 +13,7 @@
 #include "render/renderer.hpp"
 #include "scene/scene.hpp"
 
-namespace haze::render {
+namespace haze::eval {
 
 struct ReferenceOptions {
   // Per pixel e = max over RGB of sqrt(var / n / (mean^2 + 0.01)): the standard error in relMSE's units,
@@ -65,9 +65,9 @@ struct ReferenceHooks {
 // the same dir (sweep shards). `r` is reused as in render_frames.
 nlohmann::json make_reference(gpu::Context& ctx, const scene::Scene& s, int first, int last,
                               const std::string& dir, const ReferenceOptions& o, const ReferenceHooks& hooks,
-                              std::unique_ptr<Renderer>& r);
+                              std::unique_ptr<render::Renderer>& r);
 
 // The per-pixel errors e of a resolved image (see ReferenceOptions::target).
-std::vector<float> relative_standard_errors(const Image& img);
+std::vector<float> relative_standard_errors(const render::Image& img);
 
-}  // namespace haze::render
+}  // namespace haze::eval

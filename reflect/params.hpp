@@ -29,7 +29,7 @@
 #include <utility>
 #include <vector>
 
-namespace haze::scene {
+namespace haze::reflection {
 
 // One line: "<file>: <json.path>: <what is wrong; what to do>".
 struct Error : std::runtime_error {
@@ -525,4 +525,4 @@ std::string apply_override_to(nlohmann::json& j, std::string_view assignment, st
   return o.json_path;
 }
 
-}  // namespace haze::scene
+}  // namespace haze::reflection

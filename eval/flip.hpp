@@ -9,9 +9,9 @@
 #include <cstdint>
 #include <vector>
 
-#include "render/metrics.hpp"
+#include "eval/metrics.hpp"
 
-namespace haze::render {
+namespace haze::eval {
 
 struct FlipOptions {
   // Pixels per degree of visual angle: 0.7 m from a 0.7 m wide monitor 3840 pixels across.
@@ -40,4 +40,4 @@ bool flip_supports(uint32_t channel_count);
 // An error map in [0, 1] as RGBA8 through matplotlib's magma colour map (for write_png_rgba8).
 std::vector<uint32_t> magma_rgba8(const std::vector<float>& map);
 
-}  // namespace haze::render
+}  // namespace haze::eval

@@ -10,11 +10,11 @@
 #include <string>
 #include <vector>
 
+#include "eval/reference.hpp"
 #include "gpu/gpu.hpp"
-#include "render/reference.hpp"
 #include "render/renderer.hpp"
 
-namespace haze::render {
+namespace haze::eval {
 
 // One axis: a dotted path (or several set together) and its values.
 struct Axis {
@@ -67,7 +67,7 @@ std::vector<nlohmann::json> read_results(const std::string& path);
 std::string results_csv(const std::vector<nlohmann::json>& rows);
 
 // NaN and Inf among every layer haze writes for `img` (what require_finite checks).
-size_t count_nonfinite(const Image& img);
+size_t count_nonfinite(const render::Image& img);
 
 struct SweepHooks {
   std::function<void(const std::string&)> log;  // one line
@@ -83,4 +83,4 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
 // once. Throws Error listing what is missing (after writing what is there).
 nlohmann::json merge_sweep(const SweepSpec& spec, const std::string& out);
 
-}  // namespace haze::render
+}  // namespace haze::eval

@@ -1,4 +1,4 @@
-#include "render/reference.hpp"
+#include "eval/reference.hpp"
 
 #include <fcntl.h>
 #include <fmt/format.h>
@@ -13,12 +13,12 @@
 #include <map>
 #include <mutex>
 
-#include "render/metrics.hpp"
+#include "eval/metrics.hpp"
 #include "render/output.hpp"
 #include "render/run.hpp"
 #include "scene/animation.hpp"
 
-namespace haze::render {
+namespace haze::eval {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
@@ -30,7 +30,8 @@ class FileLock {
  public:
   explicit FileLock(const std::string& path) {
     fd_ = ::open(path.c_str(), O_RDWR | O_CREAT, 0644);
-    if (fd_ < 0) throw Error(fmt::format("cannot create lock file {}; choose a writable --out", path));
+    if (fd_ < 0)
+      throw render::Error(fmt::format("cannot create lock file {}; choose a writable --out", path));
     ::flock(fd_, LOCK_EX);
   }
   ~FileLock() {
@@ -61,13 +62,15 @@ std::string file_hash(const std::string& path) {
   static std::map<std::string, std::pair<std::string, std::string>> known;  // path -> (stamp, hash)
   std::error_code ec;
   const auto size = fs::file_size(path, ec);
-  if (ec) throw Error(fmt::format("cannot read {} for the reference key; check that it exists", path));
+  if (ec)
+    throw render::Error(fmt::format("cannot read {} for the reference key; check that it exists", path));
   const std::string stamp =
       fmt::format("{}:{}", size, fs::last_write_time(path, ec).time_since_epoch().count());
   std::lock_guard lock(mutex);
   if (auto it = known.find(path); it != known.end() && it->second.first == stamp) return it->second.second;
   std::ifstream f(path, std::ios::binary);
-  if (!f) throw Error(fmt::format("cannot read {} for the reference key; check that it exists", path));
+  if (!f)
+    throw render::Error(fmt::format("cannot read {} for the reference key; check that it exists", path));
   uint64_t h = kFnvBasis;
   std::vector<char> buf(1 << 20);
   while (f) {
@@ -91,17 +94,19 @@ json ReferenceOptions::to_json() const {
 
 ReferenceOptions reference_options_from_json(const json& j, const std::string& origin) {
   ReferenceOptions o;
-  if (!j.is_object()) throw Error(fmt::format("{}: expected an object {{\"target\": 0.01, ...}}", origin));
+  if (!j.is_object())
+    throw render::Error(fmt::format("{}: expected an object {{\"target\": 0.01, ...}}", origin));
   for (const auto& [k, v] : j.items()) {
     const std::string key = fmt::format("{}.{}", origin, k);
     auto number = [&](double lo, double hi) {
       if (!v.is_number() || !(v.get<double>() >= lo && v.get<double>() <= hi))
-        throw Error(fmt::format("{}: expected a number in [{}, {}], got {}", key, lo, hi, v.dump()));
+        throw render::Error(fmt::format("{}: expected a number in [{}, {}], got {}", key, lo, hi, v.dump()));
       return v.get<double>();
     };
     auto count = [&]() {
       if (!v.is_number_integer() || v.get<int64_t>() < 1 || v.get<int64_t>() > (1 << 24))
-        throw Error(fmt::format("{}: expected a whole number in [1, {}], got {}", key, 1 << 24, v.dump()));
+        throw render::Error(
+            fmt::format("{}: expected a whole number in [1, {}], got {}", key, 1 << 24, v.dump()));
       return int(v.get<int64_t>());
     };
     if (k == "target")
@@ -113,10 +118,11 @@ ReferenceOptions reference_options_from_json(const json& j, const std::string& o
     else if (k == "max_spp")
       o.max_spp = count();
     else
-      throw Error(fmt::format("{}: unknown key; the keys are target, quantile, min_spp, max_spp", key));
+      throw render::Error(
+          fmt::format("{}: unknown key; the keys are target, quantile, min_spp, max_spp", key));
   }
   if (o.min_spp > o.max_spp)
-    throw Error(
+    throw render::Error(
         fmt::format("{}: min_spp {} is above max_spp {}; lower min_spp", origin, o.min_spp, o.max_spp));
   return o;
 }
@@ -180,7 +186,7 @@ json ReferenceFrame::to_json() const {
           {"seconds", seconds}};
 }
 
-std::vector<float> relative_standard_errors(const Image& img) {
+std::vector<float> relative_standard_errors(const render::Image& img) {
   const size_t pixels = size_t(img.width) * img.height;
   std::vector<float> e(pixels, 0.f);
   const double n = std::max(img.samples, 1);
@@ -197,10 +203,11 @@ std::vector<float> relative_standard_errors(const Image& img) {
 }
 
 json make_reference(gpu::Context& ctx, const scene::Scene& s_in, int first, int last, const std::string& dir,
-                    const ReferenceOptions& o, const ReferenceHooks& hooks, std::unique_ptr<Renderer>& r) {
+                    const ReferenceOptions& o, const ReferenceHooks& hooks,
+                    std::unique_ptr<render::Renderer>& r) {
   using clock = std::chrono::steady_clock;
   const scene::Scene s = reference_scene(s_in);
-  ensure_writable_dir(dir);
+  render::ensure_writable_dir(dir);
   FileLock lock((fs::path(dir) / ".lock").string());
   const std::string key = reference_key(s, o);
   const std::string info_path = (fs::path(dir) / "reference.json").string();
@@ -211,11 +218,11 @@ json make_reference(gpu::Context& ctx, const scene::Scene& s_in, int first, int 
       std::ifstream f(info_path);
       old = json::parse(f);
     } catch (const std::exception&) {
-      throw Error(
+      throw render::Error(
           fmt::format("{}: not a reference.json (bad JSON); delete it or choose another --out", info_path));
     }
     if (old.value("key", "") != key)
-      throw Error(
+      throw render::Error(
           fmt::format("{} holds the reference of another scene or settings (key {}, this one is {}); choose "
                       "another --out",
                       dir, old.value("key", "?"), key));
@@ -239,11 +246,11 @@ json make_reference(gpu::Context& ctx, const scene::Scene& s_in, int first, int 
       continue;
     }
     auto t0 = clock::now();
-    use_frame(ctx, r, s, f, fresh);
+    render::use_frame(ctx, r, s, f, fresh);
     fresh = false;
     ReferenceFrame rf;
     rf.frame = f;
-    Image img;
+    render::Image img;
     int next = std::min(o.min_spp, o.max_spp);
     for (;;) {
       r->add_samples(next - r->samples());
@@ -261,13 +268,13 @@ json make_reference(gpu::Context& ctx, const scene::Scene& s_in, int first, int 
       if (rf.converged || rf.spp >= o.max_spp) break;
       next = int(std::min<int64_t>(int64_t(rf.spp) * 2, o.max_spp));
     }
-    write_exr(reference_frame_path(dir, f), img);
+    render::write_exr(reference_frame_path(dir, f), img);
     info["frames"][fkey] = rf.to_json();
     info["frames"][fkey]["inputs"] = inputs;
-    write_json(info_path, info);  // after each frame: a killed run keeps the frames it finished
+    render::write_json(info_path, info);  // after each frame: a killed run keeps the frames it finished
     if (hooks.on_frame) hooks.on_frame(rf, false);
   }
   return info;
 }
 
-}  // namespace haze::render
+}  // namespace haze::eval

@@ -1,4 +1,4 @@
-# The figures of `haze report` (render/report.cpp prepares data.json and the images; this only plots).
+# The figures of `haze report` (eval/report.cpp prepares data.json and the images; this only plots).
 # Embedded in the haze binary at build time and run as `python3 - data.json`; needs Debian's
 # python3-matplotlib and python3-numpy (scripts/setup.sh).
 import json

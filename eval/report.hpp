@@ -1,13 +1,13 @@
 // `haze report DIR`: one self-contained HTML file (figures embedded as data URIs) and the PNG figures beside
 // it, from a sweep's results: the speed/accuracy plot with its Pareto front, per-pass time bars, memory
 // ledger bars per category, and an image grid with crops and error heat maps. The plots are drawn by
-// matplotlib (render/report.py, embedded in the binary); this file aggregates and lays out.
+// matplotlib (eval/report.py, embedded in the binary); this file aggregates and lays out.
 #pragma once
 
 #include <nlohmann/json.hpp>
 #include <string>
 
-namespace haze::render {
+namespace haze::eval {
 
 struct ReportOptions {
   std::string out;                // the HTML file; default DIR/report.html (figures in DIR/report/)
@@ -23,4 +23,4 @@ nlohmann::json report_data(const std::string& dir, const ReportOptions& o);
 // Writes the report; returns the HTML file's path.
 std::string write_report(const std::string& dir, const ReportOptions& o);
 
-}  // namespace haze::render
+}  // namespace haze::eval

@@ -1,4 +1,4 @@
-#include "render/sweep.hpp"
+#include "eval/sweep.hpp"
 
 #include <fcntl.h>
 #include <fmt/format.h>
@@ -14,13 +14,13 @@
 #include <set>
 #include <sstream>
 
-#include "render/compare.hpp"
-#include "render/metrics.hpp"
+#include "eval/compare.hpp"
+#include "eval/metrics.hpp"
 #include "render/output.hpp"
 #include "render/run.hpp"
 #include "scene/animation.hpp"
 
-namespace haze::render {
+namespace haze::eval {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
@@ -53,17 +53,17 @@ SweepSpec load_sweep(const std::string& path, const std::vector<std::string>& cl
   SweepSpec sp;
   sp.file = path;
   std::ifstream in(path);
-  if (!in) throw Error(fmt::format("cannot open sweep file {}; check the path", path));
+  if (!in) throw render::Error(fmt::format("cannot open sweep file {}; check the path", path));
   json j;
   try {
     j = json::parse(in, nullptr, true, /*ignore_comments=*/true);
   } catch (const json::exception& e) {
     std::string what = e.what();
     if (auto b = what.find("] "); b != std::string::npos) what = what.substr(b + 2);
-    throw Error(fmt::format("{}: malformed JSON: {}; fix the syntax", path, what));
+    throw render::Error(fmt::format("{}: malformed JSON: {}; fix the syntax", path, what));
   }
   auto fail = [&](const std::string& key, const std::string& why) {
-    throw Error(fmt::format("{}: {}: {}", path, key, why));
+    throw render::Error(fmt::format("{}: {}: {}", path, key, why));
   };
   if (!j.is_object()) fail("(top)", "expected an object with \"scene\" and \"axes\"");
   for (const auto& [k, v] : j.items())
@@ -171,7 +171,7 @@ SweepSpec load_sweep(const std::string& path, const std::vector<std::string>& cl
     if (!j["layer"].is_string()) fail("layer", "expected an EXR layer name, e.g. \"denoised\", or \"\"");
     sp.layer = j["layer"].get<std::string>();
     bool known = false;
-    for (const auto& l : exr_layers()) known |= l.name == sp.layer && l.channels.size() == 3;
+    for (const auto& l : render::exr_layers()) known |= l.name == sp.layer && l.channels.size() == 3;
     if (!known)
       fail("layer", fmt::format("\"{}\" is not an RGB layer haze writes (see README's layers)", sp.layer));
   }
@@ -261,7 +261,7 @@ void check_runs(const SweepSpec& spec, const std::vector<Run>& runs) {
   try {
     scene::load(spec.scene, spec.set);
   } catch (const std::exception& e) {
-    throw Error(fmt::format("{}: set: {}", spec.file, from_sweep(e.what())));
+    throw render::Error(fmt::format("{}: set: {}", spec.file, from_sweep(e.what())));
   }
   // Each value on its own first, so that the message names the axis.
   for (size_t a = 0; a < spec.axes.size(); ++a)
@@ -274,14 +274,15 @@ void check_runs(const SweepSpec& spec, const std::vector<Run>& runs) {
       try {
         scene::load(spec.scene, o);
       } catch (const std::exception& e) {
-        throw Error(fmt::format("{}: axes[{}].values[{}]: {}", spec.file, a, v, from_sweep(e.what())));
+        throw render::Error(
+            fmt::format("{}: axes[{}].values[{}]: {}", spec.file, a, v, from_sweep(e.what())));
       }
     }
   for (const Run& r : runs) {
     try {
       scene::load(spec.scene, r.overrides);
     } catch (const std::exception& e) {
-      throw Error(
+      throw render::Error(
           fmt::format("{}: run {} {}: {}", spec.file, r.index, r.settings.dump(), from_sweep(e.what())));
     }
   }
@@ -292,7 +293,7 @@ Shard parse_shard(const std::string& text) {
   char slash = 0, extra = 0;
   if (std::sscanf(text.c_str(), "%d%c%d%c", &s.index, &slash, &s.count, &extra) != 3 || slash != '/' ||
       s.count < 1 || s.index < 0 || s.index >= s.count)
-    throw Error(fmt::format(
+    throw render::Error(fmt::format(
         "--shard {}: expected i/N with 0 <= i < N, e.g. 0/4 (Slurm: $SLURM_ARRAY_TASK_ID/N)", text));
   return s;
 }
@@ -327,8 +328,8 @@ std::vector<json> read_results(const std::string& path) {
     json row = json::parse(line, nullptr, false);
     if (row.is_discarded() || !row.is_object() || !row.contains("run")) {
       if (!last && at < text.size())
-        throw Error(fmt::format("{}: line {} is not a result row; the file was edited by hand? Move it away",
-                                path, line_no));
+        throw render::Error(fmt::format(
+            "{}: line {} is not a result row; the file was edited by hand? Move it away", path, line_no));
       torn = true;  // the run in flight when the sweep was killed: it runs again
       continue;
     }
@@ -337,7 +338,7 @@ std::vector<json> read_results(const std::string& path) {
     rows.push_back(row);
     kept += line + "\n";
   }
-  if (torn) write_text(path, kept);
+  if (torn) render::write_text(path, kept);
   return rows;
 }
 
@@ -390,10 +391,10 @@ std::string results_csv(const std::vector<json>& rows) {
   return out;
 }
 
-size_t count_nonfinite(const Image& img) {
+size_t count_nonfinite(const render::Image& img) {
   size_t n = 0;
   const size_t pixels = size_t(img.width) * img.height;
-  for (const Layer& l : exr_layers()) {
+  for (const render::Layer& l : render::exr_layers()) {
     if (!l.present(img)) continue;
     for (size_t p = 0; p < pixels; ++p)
       for (size_t c = 0; c < l.channels.size(); ++c) n += !std::isfinite(l.value(img, p, int(c)));
@@ -407,21 +408,21 @@ namespace {
 // read_results drops a torn one.
 void append_line(const std::string& path, const std::string& line) {
   int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
-  if (fd < 0) throw Error(fmt::format("cannot append to {}; check that --out is writable", path));
+  if (fd < 0) throw render::Error(fmt::format("cannot append to {}; check that --out is writable", path));
   std::string text = line + "\n";
   ssize_t n = ::write(fd, text.data(), text.size());
   ::fsync(fd);
   ::close(fd);
   if (n != ssize_t(text.size()))
-    throw Error(fmt::format("cannot append to {}: short write; disk full?", path));
+    throw render::Error(fmt::format("cannot append to {}: short write; disk full?", path));
 }
 
 // The RGB layer's values of `img`, 3 floats per pixel (load_sweep admits RGB layers only).
-std::vector<float> layer_values(const Image& img, const std::string& layer) {
-  for (const Layer& l : exr_layers()) {
+std::vector<float> layer_values(const render::Image& img, const std::string& layer) {
+  for (const render::Layer& l : render::exr_layers()) {
     if (l.name != layer) continue;
     if (!l.present(img))
-      throw Error(fmt::format(
+      throw render::Error(fmt::format(
           "layer \"{}\" is not written for this scene (its pass is off); choose another layer", layer));
     const size_t pixels = size_t(img.width) * img.height;
     std::vector<float> v(pixels * 3);
@@ -429,7 +430,7 @@ std::vector<float> layer_values(const Image& img, const std::string& layer) {
       for (int c = 0; c < 3; ++c) v[p * 3 + size_t(c)] = l.value(img, p, c);
     return v;
   }
-  throw Error(fmt::format("no layer \"{}\"", layer));
+  throw render::Error(fmt::format("no layer \"{}\"", layer));
 }
 
 std::string relative_to(const std::string& path, const std::string& base) {
@@ -448,19 +449,19 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
   check_runs(spec, all);
   std::vector<Run> runs = shard_runs(all, shard);
   const std::string dir = shard_dir(out, shard);
-  ensure_writable_dir(dir);
+  render::ensure_writable_dir(dir);
   // One sweep per folder: a different sweep file here would mix its rows with these.
   const std::string spec_path = (fs::path(dir) / "sweep.json").string();
   if (fs::exists(spec_path)) {
     std::ifstream f(spec_path);
     json old = json::parse(f, nullptr, false);
     if (old.is_discarded() || old != spec.canonical)
-      throw Error(
+      throw render::Error(
           fmt::format("{} holds the results of a different sweep (its sweep.json differs from {}); "
                       "choose another --out, or delete it to start over",
                       dir, spec.file));
   } else {
-    write_json(spec_path, spec.canonical);
+    render::write_json(spec_path, spec.canonical);
   }
   const std::string jsonl = (fs::path(dir) / "results.jsonl").string();
   const std::string csv = (fs::path(dir) / "results.csv").string();
@@ -476,7 +477,7 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
       runs.size() - todo.size(), todo.size()));
   if (hooks.progress) hooks.progress(0, todo.size(), nullptr);
 
-  std::unique_ptr<Renderer> r;
+  std::unique_ptr<render::Renderer> r;
   int code = 0;
   for (size_t i = 0; i < todo.size(); ++i) {
     const Run& run = todo[i];
@@ -496,13 +497,13 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
       make_reference(ctx, s, first, last, ref_dir, *spec.reference, rh, r);
     }
     const std::string run_dir = (fs::path(dir) / "runs" / run.id).string();
-    if (spec.save_images != "none") ensure_writable_dir(run_dir);
+    if (spec.save_images != "none") render::ensure_writable_dir(run_dir);
     std::vector<std::vector<float>> test_frames;
     std::vector<LayerImage> ref_frames;
     json per_frame = json::array(), memory, images = json::array();
     size_t bad = 0;
-    FrameLoop loop;
-    loop.on_frame = [&](int f, const Image& img) {
+    render::FrameLoop loop;
+    loop.on_frame = [&](int f, const render::Image& img) {
       bad += count_nonfinite(img);
       json m = {{"frame", f}};
       if (spec.reference) {
@@ -515,7 +516,7 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
       per_frame.push_back(m);
       if (spec.save_images == "all" || (spec.save_images == "last" && f == last)) {
         std::string path = (fs::path(run_dir) / fmt::format("frame_{:04d}.exr", f)).string();
-        write_exr(path, img);
+        render::write_exr(path, img);
         images.push_back(relative_to(path, dir));
       }
       if (f == last) memory = ctx.ledger().to_json();
@@ -525,9 +526,9 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
     scene::Scene warm = s;
     warm.render.spp = 1;
     const double pipeline_ms =
-        render_frames(ctx, warm, first, first, FrameLoop{}, r).stats["pipeline_creation_ms"];
+        render::render_frames(ctx, warm, first, first, render::FrameLoop{}, r).stats["pipeline_creation_ms"];
     ctx.ledger().reset_peak();
-    RunSummary rs = render_frames(ctx, s, first, last, loop, r);
+    render::RunSummary rs = render::render_frames(ctx, s, first, last, loop, r);
     const int frames = last - first + 1;
     json row = {{"run", run.id},
                 {"index", run.index},
@@ -579,14 +580,14 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
     row["notes"] = rs.notes;
     append_line(jsonl, row.dump());
     rows.push_back(row);
-    write_text(csv, results_csv(rows));
+    render::write_text(csv, results_csv(rows));
     if (bad > 0 && spec.require_finite) {
       log(fmt::format("run {} {}: {} NaN or Inf values", run.index, run.settings.dump(), bad));
       code = 4;
     }
     if (hooks.progress) hooks.progress(i + 1, todo.size(), &rows.back());
   }
-  if (todo.empty()) write_text(csv, results_csv(rows));
+  if (todo.empty()) render::write_text(csv, results_csv(rows));
   return code;
 }
 
@@ -602,7 +603,7 @@ json merge_sweep(const SweepSpec& spec, const std::string& out) {
       sources.push_back(e.path().string());
   std::sort(sources.begin() + (sources.size() && sources[0] == out ? 1 : 0), sources.end());
   if (sources.empty())
-    throw Error(
+    throw render::Error(
         fmt::format("{}: no results.jsonl and no shard-*/ folders to merge; run the shards first", out));
   std::map<size_t, json> merged;
   size_t duplicates = 0, foreign = 0;
@@ -611,7 +612,7 @@ json merge_sweep(const SweepSpec& spec, const std::string& out) {
     std::ifstream f(spec_path);
     json s = json::parse(f, nullptr, false);
     if (s.is_discarded() || s != spec.canonical)
-      throw Error(fmt::format(
+      throw render::Error(fmt::format(
           "{} holds the results of a different sweep than {}; move it away and merge again", src, spec.file));
     for (json row : read_results((fs::path(src) / "results.jsonl").string())) {
       auto it = by_id.find(row["run"].get<std::string>());
@@ -639,9 +640,9 @@ json merge_sweep(const SweepSpec& spec, const std::string& out) {
     text += row.dump() + "\n";
     rows.push_back(row);
   }
-  write_json((fs::path(out) / "sweep.json").string(), spec.canonical);
-  write_text((fs::path(out) / "results.jsonl").string(), text);
-  write_text((fs::path(out) / "results.csv").string(), results_csv(rows));
+  render::write_json((fs::path(out) / "sweep.json").string(), spec.canonical);
+  render::write_text((fs::path(out) / "results.jsonl").string(), text);
+  render::write_text((fs::path(out) / "results.csv").string(), results_csv(rows));
   json summary = {{"runs", all.size()},
                   {"merged", rows.size()},
                   {"duplicates", duplicates},
@@ -654,7 +655,7 @@ json merge_sweep(const SweepSpec& spec, const std::string& out) {
         first_missing = fmt::format("run {} {}", r.index, r.settings.dump());
         break;
       }
-    throw Error(
+    throw render::Error(
         fmt::format("{}: merged {} of {} runs; {} missing (first: {}); run the missing shards, then merge "
                     "again",
                     out, rows.size(), all.size(), all.size() - rows.size(), first_missing));
@@ -662,4 +663,4 @@ json merge_sweep(const SweepSpec& spec, const std::string& out) {
   return summary;
 }
 
-}  // namespace haze::render
+}  // namespace haze::eval

@@ -1,6 +1,6 @@
 // FLIP, LDR (HPG 2020) and HDR (EG 2021); the papers' symbols are kept in local names: qc, pc, pt, qf, w,
 // cmax, the CSF's a1, b1, a2, b2, the tone mapper's k0..k5. docs/metrics.md lists every formula.
-#include "render/flip.hpp"
+#include "eval/flip.hpp"
 
 #include <algorithm>
 #include <array>
@@ -8,7 +8,7 @@
 #include <numbers>
 #include <stdexcept>
 
-namespace haze::render {
+namespace haze::eval {
 
 namespace {
 
@@ -378,4 +378,4 @@ std::vector<uint32_t> magma_rgba8(const std::vector<float>& map) {
   return rgba;
 }
 
-}  // namespace haze::render
+}  // namespace haze::eval

@@ -1,4 +1,4 @@
-#include "scene/params.hpp"
+#include "reflect/params.hpp"
 
 #include <fmt/format.h>
 
@@ -8,7 +8,7 @@
 #include <cmath>
 #include <cstdlib>
 
-namespace haze::scene {
+namespace haze::reflection {
 
 using nlohmann::json;
 
@@ -429,4 +429,4 @@ void set_override(json& root, const Override& o, std::string_view value_text) {
 
 }  // namespace detail
 
-}  // namespace haze::scene
+}  // namespace haze::reflection

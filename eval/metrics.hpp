@@ -8,7 +8,7 @@
 #include <string>
 #include <vector>
 
-namespace haze::render {
+namespace haze::eval {
 
 // Channels of one image, each `pixels` floats apart from `stride`/`offset` addressing: channel c of pixel
 // p is data[p * stride + offset + c]. Lets a resolved Image's layers be compared in place.
@@ -50,4 +50,4 @@ struct Temporal {
 };
 Temporal temporal(const std::vector<Channels>& x, const std::vector<Channels>& ref);
 
-}  // namespace haze::render
+}  // namespace haze::eval

@@ -1,10 +1,10 @@
-#include "render/metrics.hpp"
+#include "eval/metrics.hpp"
 
 #include <cmath>
 #include <limits>
 #include <stdexcept>
 
-namespace haze::render {
+namespace haze::eval {
 
 namespace {
 
@@ -85,4 +85,4 @@ nlohmann::json Temporal::to_json() const {
           {"change_ratio", std::isinf(change_ratio) ? nlohmann::json("inf") : nlohmann::json(change_ratio)}};
 }
 
-}  // namespace haze::render
+}  // namespace haze::eval
