@@ -1,6 +1,6 @@
 #pragma once
-// haze's GPU layer: device, buffers, images, compute pipelines, timestamps, memory ledger. Knows nothing of
-// rendering.
+// haze's GPU layer: device, buffers, images, compute pipelines, run-time shader compiler, timestamps, memory
+// ledger. Knows nothing of rendering.
 
 #include "gpu/buffer.hpp"
 #include "gpu/context.hpp"
@@ -8,5 +8,6 @@
 #include "gpu/image.hpp"
 #include "gpu/ledger.hpp"
 #include "gpu/pipeline.hpp"
+#include "gpu/shader_compiler.hpp"
 #include "gpu/timer.hpp"
 #include "gpu/vk_struct.hpp"

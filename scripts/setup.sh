@@ -12,8 +12,8 @@ PACKAGES=(
   libopenvdb-dev libnanovdb-dev libtbb-dev libboost-iostreams-dev liblog4cplus-dev libblosc-dev zlib1g-dev
   # surfaces
   libembree-dev libtinyobjloader-dev libstb-dev
-  # Vulkan: loader, headers, validation, shader compiler
-  libvulkan-dev vulkan-validationlayers glslang-tools spirv-tools
+  # Vulkan: loader, headers, validation, shader compiler (glslangValidator, and the library for run-time compiles)
+  libvulkan-dev vulkan-validationlayers glslang-tools glslang-dev spirv-tools
   # math, images, CLI, formats, logging
   libglm-dev libopenexr-dev libcli11-dev nlohmann-json3-dev libfmt-dev
   # tests and benchmarks
