@@ -313,7 +313,7 @@ std::vector<std::string> Context::validation_log() const {
   return validation_log_;
 }
 
-Context::Context(const ContextOptions& options) {
+Context::Context(const ContextOptions& options) : shaders_(options.shader_cache) {
   try {
     std::string venv = lower(env("HAZE_VALIDATION"));
     bool sync = venv == "sync";

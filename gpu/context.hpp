@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "gpu/ledger.hpp"
+#include "gpu/shader_compiler.hpp"
 
 namespace haze::gpu {
 
@@ -23,6 +24,7 @@ struct ContextOptions {
   bool validation = false;  // also switched on by env HAZE_VALIDATION=1 ("sync" adds synchronization checks)
   std::string pipeline_cache;  // VkPipelineCache file to load and save ("" = none)
   bool force_staging = false;  // tests: move data through staging buffers even when memory is host-visible
+  std::string shader_cache;    // SPIR-V cache folder of shaders() ("" = ShaderCompiler::default_cache_dir())
 };
 
 // Optional device capabilities, each enabled when the device has it.
@@ -62,6 +64,10 @@ class Context {
   uint64_t max_allocation_size() const { return max_allocation_; }  // maxMemoryAllocationSize
   uint64_t max_buffer_size() const { return max_buffer_; }          // maxBufferSize (maintenance4)
   bool force_staging() const { return force_staging_; }
+
+  // GLSL -> SPIR-V for this context's pipelines (the embedded sources, cached in options.shader_cache).
+  ShaderCompiler& shaders() { return shaders_; }
+  const ShaderCompiler& shaders() const { return shaders_; }
 
   MemoryLedger& ledger() { return ledger_; }
   const MemoryLedger& ledger() const { return ledger_; }
@@ -122,6 +128,7 @@ class Context {
   VkFence fence_ = VK_NULL_HANDLE;
 
   MemoryLedger ledger_;
+  ShaderCompiler shaders_;
 
   std::atomic<uint64_t> validation_count_{0};
   mutable std::mutex log_mutex_;
