@@ -49,17 +49,22 @@ class CopyKernel {
       : count_(uint32_t((floats + 3) / 4)),
         src_(ctx, "bench copy source", "benchmark", uint64_t(count_) * 16, "RGBA32F"),
         dst_(ctx, "bench copy destination", "benchmark", uint64_t(count_) * 16, "RGBA32F"),
-        pipeline_(ctx, render::spv_dir() + "/bench/copy.comp.0.spv", 2, 4) {
+        kernel_(ctx, gpu::KernelDecl("bench/copy.comp")
+                         .buffer("src", uint64_t(count_) * 16)
+                         .buffer("dst", uint64_t(count_) * 16)
+                         .push(4)) {
     src_.fill_zero();
+    bindings_.set("src", src_).set("dst", dst_);
   }
   void record(VkCommandBuffer cmd) const {
-    pipeline_.dispatch(cmd, {&src_, &dst_}, &count_, gpu::div_up(count_, 64));
+    kernel_.dispatch(cmd, bindings_, &count_, kernel_.groups_1d(count_));
   }
 
  private:
   uint32_t count_;
   gpu::Buffer src_, dst_;
-  gpu::ComputePipeline pipeline_;
+  gpu::Kernel kernel_;
+  gpu::Bindings bindings_;
 };
 
 // GPU time of one submission of `record`.
@@ -96,18 +101,20 @@ std::map<std::string, double> bench_svgf(gpu::Context& ctx, uint32_t W, uint32_t
     q[glsl::G_MOTION] = 0.5f;
   }
   gpu::Buffer in(ctx, "bench svgf colour", "benchmark", colour.size() * 4, "3 x f32");
-  gpu::Buffer gb(ctx, "bench svgf g-buffer", "benchmark", g.size() * 4, "G_* layout");
+  gpu::PixelLayers gb(ctx, "bench svgf g-buffer", "benchmark", pixels, render::kGBufferLayers);
+  gpu::PixelLayers prev(ctx, "bench svgf previous g-buffer", "benchmark", pixels, render::kPrevGBufferLayers);
   in.upload(colour);
   gb.upload(g);
+  prev.upload(g);
   denoise::SvgfParams params;
   params.kernel = kernel;
-  denoise::Svgf svgf(ctx, "bench", params, W, H, true, render::spv_dir());
+  denoise::Svgf svgf(ctx, "bench", params, W, H, true);
   gpu::Timer timer(ctx);
   std::map<std::string, std::vector<double>> ms;
   for (int i = 0; i < reps + 2; ++i) {
     ctx.submit_and_wait([&](VkCommandBuffer cmd) {
       timer.reset(cmd);
-      svgf.run(cmd, &timer, {&in, 3, 0, &gb, &gb, &gb, glsl::G_STRIDE, glsl::G_MOTION});
+      svgf.run(cmd, &timer, {&in, 3, 0, &gb, &prev, &gb[glsl::G_MOTION / 4], 4, glsl::G_MOTION % 4});
       gpu::compute_barrier(cmd);
       timer.begin(cmd, "svgf.bench.copy");
       copy.record(cmd);
@@ -157,11 +164,13 @@ BvhFigures bench_bvh(gpu::Context& ctx) {
   gpu::Buffer ray_buf(ctx, "bench rays", "benchmark", n * sizeof(glsl::GpuRay), "GpuRay");
   ray_buf.upload(rays);
   gpu::Buffer hit_buf(ctx, "bench hits", "benchmark", n * sizeof(glsl::GpuRayHit), "GpuRayHit");
-  gpu::ComputePipeline trace(ctx, gpu::variant_spv(render::spv_dir(), "surfaces/trace_rays.comp", 0), 4, 4);
+  gpu::Kernel trace(ctx, surfaces::trace_rays_decl(dev, n, false));
+  gpu::Bindings b;
+  dev.bind(b);
+  b.set("rays", ray_buf).set("hits", hit_buf);
   uint32_t count = uint32_t(n);
-  double gpu_ms = timed_median(ctx, 3, [&](VkCommandBuffer cmd) {
-    trace.dispatch(cmd, {&dev.nodes, &dev.triangles, &ray_buf, &hit_buf}, &count, (count + 63) / 64);
-  });
+  double gpu_ms = timed_median(
+      ctx, 3, [&](VkCommandBuffer cmd) { trace.dispatch(cmd, b, &count, trace.groups_1d(count)); });
   surfaces::EmbreeScene ref(geo.bvh.triangles);
   std::vector<double> cpu;
   for (int rep = 0; rep < 3; ++rep) {
@@ -264,26 +273,21 @@ void bench_passes(gpu::Context& ctx, const scene::Scene& s, int w, int h, int sp
   const double t_trace = render::median(trace_ms), t_resolve = render::median(resolve_ms);
   const double t_copy = render::median(copy_ms);
 
-  const auto& dm = r.media();
-  glsl::GpuScene gs = volume::build_gpu_scene(s, dm, 0, 0);
-  gpu::Buffer scene_buf(ctx, "bench scene", "benchmark", sizeof(gs), "GpuScene");
-  scene_buf.upload(&gs, sizeof(gs));
-  gpu::Buffer nano(ctx, "bench nanovdb", "benchmark", dm.nanovdb.size() * 4, "NanoVDB");
-  nano.upload(dm.nanovdb);
-  gpu::Buffer media(ctx, "bench media", "benchmark", dm.media.size() * sizeof(glsl::GpuMedium), "GpuMedium");
-  media.upload(dm.media);
-  gpu::Buffer maj(ctx, "bench majorant", "benchmark", dm.majorant.sigma_max.size() * 4, "f32");
-  maj.upload(dm.majorant.sigma_max);
+  // Density lookups through the renderer's own media and scene block.
   struct {
     uint32_t count, lookups;
   } push{uint32_t(pixels), 16};
   gpu::Buffer out(ctx, "bench lookup result", "benchmark", pixels * 4, "f32");
-  gpu::ComputePipeline lookup(ctx, render::spv_dir() + "/bench/lookup.comp.0.spv", 5, 8);
+  gpu::KernelDecl ld("bench/lookup.comp");
+  ld.buffer("scene", sizeof(glsl::GpuScene));
+  r.device_media().declare(ld);
+  gpu::Kernel lookup(ctx, std::move(ld.buffer("result", pixels * 4).push(8)));
+  gpu::Bindings lb;
+  lb.set("scene", r.scene_buffer()).set("result", out);
+  r.device_media().bind(lb);
   const auto lookup_and_copy = timed_medians(
       ctx, 3,
-      {[&](VkCommandBuffer cmd) {
-         lookup.dispatch(cmd, {&scene_buf, &nano, &media, &maj, &out}, &push, (push.count + 63) / 64);
-       },
+      {[&](VkCommandBuffer cmd) { lookup.dispatch(cmd, lb, &push, lookup.groups_1d(push.count)); },
        [&](VkCommandBuffer cmd) { copy.record(cmd); }});
   const double t_lookup = lookup_and_copy[0], t_lookup_copy = lookup_and_copy[1];
   double lookups = double(push.count) * push.lookups;

@@ -7,7 +7,7 @@
 
 #include "bench/bench_util.hpp"
 #include "render/renderer.hpp"
-#include "volume/glsl.hpp"
+#include "shaders/glsl.hpp"
 
 namespace haze::bench {
 
@@ -42,12 +42,16 @@ std::vector<glm::vec3> repr_points(const ReprGrid& g, bool march, uint32_t i, ui
   return p;
 }
 
-VolumeReprKernels::VolumeReprKernels(gpu::Context& ctx, const std::string& spv_dir) : ctx_(ctx) {
+VolumeReprKernels::VolumeReprKernels(gpu::Context& ctx) : ctx_(ctx) {
   for (int dense = 0; dense < 2; ++dense)
-    for (int march = 0; march < 2; ++march)
-      pipelines_[dense][march] = std::make_unique<gpu::ComputePipeline>(
-          ctx, gpu::variant_spv(spv_dir, "bench/volume_repr.comp", uint32_t(dense)), 6,
-          uint32_t(sizeof(ReprPush)), std::vector<uint32_t>{uint32_t(march)});
+    for (int march = 0; march < 2; ++march) {
+      // medium.glsl's scene, media and majorant bindings are declared but never read here.
+      gpu::KernelDecl d("bench/volume_repr.comp");
+      if (dense) d.define("HAZE_DENSE");
+      d.buffer("scene").buffer("nanovdb").buffer("media").buffer("majorant").buffer("dense").buffer("result");
+      kernels_[dense][march] =
+          gpu::Kernel(ctx, std::move(d.push(sizeof(ReprPush)).specialize({uint32_t(march)})));
+    }
   placeholder_ = gpu::Buffer(ctx, "bench volume_repr placeholder", "benchmark",
                              std::max(sizeof(glsl::GpuScene), sizeof(glsl::GpuMedium)), "unused");
   placeholder_.fill_zero();
@@ -96,9 +100,14 @@ void VolumeReprKernels::record(VkCommandBuffer cmd, const ReprGrid& g, bool dens
                 glm::vec4(g.hi, 0),
                 glm::ivec4(g.origin, 0),
                 glm::ivec4(g.dims, 0)};
-  pipelines_[dense][march]->dispatch(
-      cmd, {&placeholder_, &g.nanovdb, &placeholder_, &placeholder_, &g.dense, &out}, &push,
-      gpu::div_up(count, 64));
+  gpu::Bindings b;
+  b.set("scene", placeholder_)
+      .set("nanovdb", g.nanovdb)
+      .set("media", placeholder_)
+      .set("majorant", placeholder_);
+  b.set("dense", g.dense).set("result", out);
+  const gpu::Kernel& k = kernels_[dense][march];
+  k.dispatch(cmd, b, &push, k.groups_1d(count));
 }
 
 std::vector<float> VolumeReprKernels::run(const ReprGrid& g, bool dense, bool march, uint32_t count,
@@ -154,7 +163,7 @@ std::vector<ReprSpec> repr_specs() {
 }  // namespace
 
 nlohmann::json bench_volume_repr(gpu::Context& ctx, const VolumeReprOptions& o) {
-  VolumeReprKernels kernels(ctx, render::spv_dir());
+  VolumeReprKernels kernels(ctx);
   gpu::Buffer out_a(ctx, "bench volume_repr sums (nanovdb)", "benchmark", uint64_t(o.invocations) * 4, "f32");
   gpu::Buffer out_b(ctx, "bench volume_repr sums (dense)", "benchmark", uint64_t(o.invocations) * 4, "f32");
   nlohmann::json grids = nlohmann::json::array();

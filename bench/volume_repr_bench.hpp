@@ -34,7 +34,7 @@ std::vector<glm::vec3> repr_points(const ReprGrid& g, bool march, uint32_t i, ui
 // The four pipelines (NanoVDB / dense x random lookups / march), created once.
 class VolumeReprKernels {
  public:
-  VolumeReprKernels(gpu::Context& ctx, const std::string& spv_dir);
+  explicit VolumeReprKernels(gpu::Context& ctx);
   ~VolumeReprKernels();
 
   // Uploads `grid` (background 0, checked) as NanoVDB and as a dense array; buffers in category "benchmark".
@@ -48,8 +48,8 @@ class VolumeReprKernels {
 
  private:
   gpu::Context& ctx_;
-  std::unique_ptr<gpu::ComputePipeline> pipelines_[2][2];  // [dense][march]
-  gpu::Buffer placeholder_;  // for the bindings of medium.glsl the kernel declares but never reads
+  gpu::Kernel kernels_[2][2];  // [dense][march]
+  gpu::Buffer placeholder_;    // for the bindings of medium.glsl the kernel declares but never reads
 };
 
 // Largest relative difference between two lists of sums: |a - b| / max(|a|, |b|, floor), with floor =

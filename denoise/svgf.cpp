@@ -42,13 +42,8 @@ glsl::SvgfGpuParams gpu_params(const SvgfParams& p, uint32_t W, uint32_t H, bool
 }  // namespace
 
 Svgf::Svgf(gpu::Context& ctx, std::string name, const SvgfParams& params, uint32_t width, uint32_t height,
-           bool remodulate, const std::string& spv_dir)
-    : ctx_(ctx),
-      name_(std::move(name)),
-      width_(width),
-      height_(height),
-      remodulate_(remodulate),
-      spv_dir_(spv_dir) {
+           bool remodulate)
+    : ctx_(ctx), name_(std::move(name)), width_(width), height_(height), remodulate_(remodulate) {
   const uint64_t pixels = uint64_t(width) * height;
   const std::string temps = fmt::format("svgf.{} per-frame temporaries", name_);
   const std::string prev = fmt::format("svgf.{} previous-frame data", name_);
@@ -70,42 +65,75 @@ Svgf::Svgf(gpu::Context& ctx, std::string name, const SvgfParams& params, uint32
 
 Svgf::~Svgf() = default;
 
-void Svgf::create_pipelines() {
+void Svgf::create_kernels() {
   const uint32_t classic = params_.mode == "classic" ? 1 : 0;
   const uint32_t subsampled = params_.kernel == "subsampled" ? 1 : 0;
-  auto spv = [&](const char* pass) {
-    return gpu::variant_spv(spv_dir_, fmt::format("denoise/{}.comp", pass), 0);
+  const uint64_t pixels = uint64_t(width_) * height_;
+  const uint64_t blocks = uint64_t(gpu::div_up(width_, kBlock)) * gpu::div_up(height_, kBlock);
+  auto decl = [&](const char* pass) {
+    gpu::KernelDecl d(fmt::format("denoise/{}.comp", pass));
+    d.buffer("params", sizeof(glsl::SvgfGpuParams));
+    return d;
   };
-  percentiles_pass_ = std::make_unique<gpu::ComputePipeline>(ctx_, spv("percentiles"), 3, 0);
-  accumulate_pass_ =
-      std::make_unique<gpu::ComputePipeline>(ctx_, spv("accumulate"), 10, 8, std::vector<uint32_t>{classic});
-  variance_pass_ =
-      std::make_unique<gpu::ComputePipeline>(ctx_, spv("variance"), 6, 0, std::vector<uint32_t>{classic});
-  filter_pass_ = std::make_unique<gpu::ComputePipeline>(ctx_, spv("filter"), 4, 4,
-                                                        std::vector<uint32_t>{classic, subsampled});
-  taa_pass_ = std::make_unique<gpu::ComputePipeline>(ctx_, spv("taa"), 6, 4);
+  // The G-buffer layers of this frame (and of the previous one).
+  auto gbuffer = [&](gpu::KernelDecl& d, const char* prefix) {
+    for (const char* layer : {"g_depth", "g_normal", "g_albedo"})
+      d.buffer(std::string(prefix) + layer, pixels * 16, 16);
+  };
+  const uint64_t half4 = pixels * 8, moments = pixels * glsl::SVGF_MOMENTS_STRIDE * 4;
+  auto make = [&](gpu::KernelDecl d) {
+    gpu::Kernel k(ctx_, std::move(d));
+    pipeline_ms_ += k.setup_ms();
+    return k;
+  };
+  gpu::KernelDecl p = decl("percentiles");
+  p.buffer("colour", pixels * 12).buffer("percentiles", blocks * 16);
+  percentiles_pass_ = make(std::move(p));
+  gpu::KernelDecl a = decl("accumulate");
+  a.buffer("colour", pixels * 12);
+  gbuffer(a, "");
+  gbuffer(a, "prev_");
+  a.buffer("motion", pixels * 8).buffer("percentiles", blocks * 16).buffer("hist_colour", half4);
+  a.buffer("hist_moments", moments).buffer("out_colour", half4).buffer("out_moments", half4);
+  accumulate_pass_ = make(std::move(a.push(8).specialize({classic})));
+  gpu::KernelDecl v = decl("variance");
+  gbuffer(v, "");
+  v.buffer("acc_colour", half4).buffer("acc_moments", half4).buffer("out_colour", half4);
+  v.buffer("hist_moments", moments);
+  variance_pass_ = make(std::move(v.specialize({classic})));
+  gpu::KernelDecl f = decl("filter");
+  gbuffer(f, "");
+  f.buffer("in_colour", half4).buffer("out_colour", half4);
+  filter_pass_ = make(std::move(f.push(4).specialize({classic, subsampled})));
+  gpu::KernelDecl t = decl("taa");
+  gbuffer(t, "");
+  t.buffer("motion", pixels * 8).buffer("filtered", half4).buffer("prev_output", half4).buffer("outp", half4);
+  taa_pass_ = make(std::move(t.push(4)));
 }
 
 void Svgf::set_params(const SvgfParams& params) {
-  bool rebuild = !accumulate_pass_ || params.mode != params_.mode || params.kernel != params_.kernel;
+  bool rebuild = !accumulate_pass_.valid() || params.mode != params_.mode || params.kernel != params_.kernel;
   params_ = params;
   const glm::uvec4 layout = gpu_.layout_in;
   gpu_ = gpu_params(params_, width_, height_, remodulate_);
   gpu_.layout_in = layout;
   gpu_dirty_ = true;
-  if (rebuild) create_pipelines();
-}
-
-double Svgf::pipeline_ms() const {
-  double ms = 0;
-  for (const auto* p : {&percentiles_pass_, &accumulate_pass_, &variance_pass_, &filter_pass_, &taa_pass_})
-    if (*p) ms += (*p)->creation_ms();
-  return ms;
+  if (rebuild) create_kernels();
 }
 
 void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
   if (!in.colour || !in.gbuffer || !in.prev_gbuffer || !in.motion)
     throw gpu::Error(fmt::format("svgf.{}: an input buffer is missing", name_));
+  const uint64_t pixels = uint64_t(width_) * height_;
+  auto check = [&](const gpu::Buffer& b, uint32_t stride, uint32_t offset, uint32_t n, const char* what) {
+    if (stride < offset + n || b.size() < ((pixels - 1) * stride + offset + n) * 4)
+      throw gpu::Error(
+          fmt::format("svgf.{}: {} buffer '{}' ({} bytes) does not hold {} pixels of {} floats with "
+                      "{} at {}",
+                      name_, what, b.name(), b.size(), pixels, stride, n, offset));
+  };
+  check(*in.colour, in.colour_stride, in.colour_offset, 3, "colour");
+  check(*in.motion, in.motion_stride, in.motion_offset, 2, "motion");
   // The parameter buffer changes only with set_params() or the inputs' layout.
   const glm::uvec4 layout(in.colour_stride, in.colour_offset, in.motion_stride, in.motion_offset);
   if (gpu_dirty_ || gpu_.layout_in != layout) {
@@ -114,6 +142,11 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
     gpu::compute_barrier(cmd);
     gpu_dirty_ = false;
   }
+  // What every pass may read: the parameters, the inputs and the G-buffers.
+  gpu::Bindings common;
+  common.set("params", params_buf_).set("colour", *in.colour).set("motion", *in.motion);
+  in.gbuffer->bind(common);
+  in.prev_gbuffer->bind(common);
 
   const uint32_t gx = (width_ + 7) / 8, gy = (height_ + 7) / 8;
   auto scope = [&](const char* pass) {
@@ -126,19 +159,27 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
   const bool classic = params_.mode == "classic";
   if (!classic) {
     scope("percentiles");
-    percentiles_pass_->dispatch(cmd, {&params_buf_, in.colour, &percentiles_}, nullptr, gx, gy);
+    gpu::Bindings b = common;
+    b.set("percentiles", percentiles_);
+    percentiles_pass_.dispatch(cmd, b, nullptr, gx, gy);
     end();
   }
   scope("accumulate");
   const uint32_t push[2] = {frame_, has_history_ ? 1u : 0u};
-  accumulate_pass_->dispatch(cmd,
-                             {&params_buf_, in.colour, in.gbuffer, in.prev_gbuffer, in.motion, &percentiles_,
-                              &history_, &moments_, &temp_[0], &temp_[1]},
-                             push, gx, gy);
+  {
+    gpu::Bindings b = common;
+    b.set("percentiles", percentiles_).set("hist_colour", history_).set("hist_moments", moments_);
+    b.set("out_colour", temp_[0]).set("out_moments", temp_[1]);
+    accumulate_pass_.dispatch(cmd, b, push, gx, gy);
+  }
   end();
   scope("variance");
-  variance_pass_->dispatch(cmd, {&params_buf_, in.gbuffer, &temp_[0], &temp_[1], &history_, &moments_},
-                           nullptr, gx, gy);
+  {
+    gpu::Bindings b = common;
+    b.set("acc_colour", temp_[0]).set("acc_moments", temp_[1]).set("out_colour", history_);
+    b.set("hist_moments", moments_);
+    variance_pass_.dispatch(cmd, b, nullptr, gx, gy);
+  }
   end();
   // history_ now holds (colour, sigma), the first iteration's input. That iteration's output becomes the
   // next frame's history (copied back into history_ once it is no longer read).
@@ -146,7 +187,9 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
   int dst = 0;
   for (uint32_t i = 0; i < uint32_t(params_.iterations); ++i) {
     scope(fmt::format("filter{}", i).c_str());
-    filter_pass_->dispatch(cmd, {&params_buf_, in.gbuffer, src, &temp_[dst]}, &i, gx, gy);
+    gpu::Bindings b = common;
+    b.set("in_colour", *src).set("out_colour", temp_[dst]);
+    filter_pass_.dispatch(cmd, b, &i, gx, gy);
     end();
     if (i == 0) {
       gpu::copy_buffer(cmd, temp_[0], history_);
@@ -158,7 +201,11 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
   scope("taa");
   const gpu::Buffer& taa_out = src == &temp_[0] ? temp_[1] : temp_[0];
   const uint32_t taa_push = has_history_ ? 1u : 0u;
-  taa_pass_->dispatch(cmd, {&params_buf_, in.gbuffer, in.motion, src, &taa_, &taa_out}, &taa_push, gx, gy);
+  {
+    gpu::Bindings b = common;
+    b.set("filtered", *src).set("prev_output", taa_).set("outp", taa_out);
+    taa_pass_.dispatch(cmd, b, &taa_push, gx, gy);
+  }
   end();
   gpu::copy_buffer(cmd, taa_out, taa_);
   gpu::compute_barrier(cmd);

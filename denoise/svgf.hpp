@@ -1,7 +1,7 @@
-// One percentile-adaptive SVGF instance (DESIGN.md section 6): the passes percentiles, accumulate, variance,
-// N filter iterations and TAA, their buffers and pipelines. It knows images and G-buffers only; the
-// renderer runs a surface instance on the demodulated surface signal (and the volume instance will run on
-// the volume signal).
+// One percentile-adaptive SVGF instance (docs/denoising.md): the passes percentiles, accumulate, variance,
+// N filter iterations and TAA, their buffers and kernels. It knows images and G-buffers only; the
+// renderer runs a surface instance on the demodulated surface signal and a volume instance on the volume
+// signal.
 #pragma once
 
 #include <cstdint>
@@ -12,6 +12,8 @@
 
 #include "denoise/params.hpp"
 #include "gpu/gpu.hpp"
+#include "gpu/kernel.hpp"
+#include "gpu/pixel_layers.hpp"
 
 namespace haze::denoise {
 
@@ -24,12 +26,13 @@ static_assert(sizeof(SvgfGpuParams) == 11 * 16);
 }  // namespace glsl
 
 // What an instance reads. Colour and motion are `stride` floats per pixel with the rgb (xy) at `offset`;
-// the G-buffers use the G_* layout of shaders/common/gbuffer.glsl.
+// the G-buffers are the layers of shaders/common/gbuffer.glsl: this frame's named g_depth, g_normal and
+// g_albedo, the previous frame's prev_g_depth, prev_g_normal and prev_g_albedo.
 struct SvgfInputs {
   const gpu::Buffer* colour = nullptr;
   uint32_t colour_stride = 3, colour_offset = 0;
-  const gpu::Buffer* gbuffer = nullptr;
-  const gpu::Buffer* prev_gbuffer = nullptr;
+  const gpu::PixelLayers* gbuffer = nullptr;
+  const gpu::PixelLayers* prev_gbuffer = nullptr;
   const gpu::Buffer* motion = nullptr;
   uint32_t motion_stride = 2, motion_offset = 0;
 };
@@ -46,7 +49,7 @@ class Svgf {
   // `name` ("surface", "volume") prefixes the passes' timer names and the ledger categories. `remodulate`:
   // multiply by the G-buffer albedo at the end (the input was divided by it).
   Svgf(gpu::Context& ctx, std::string name, const SvgfParams& params, uint32_t width, uint32_t height,
-       bool remodulate, const std::string& spv_dir);
+       bool remodulate);
   ~Svgf();
 
   void set_params(const SvgfParams& params);
@@ -60,7 +63,7 @@ class Svgf {
   uint32_t width() const { return width_; }
   uint32_t height() const { return height_; }
   const std::string& name() const { return name_; }
-  double pipeline_ms() const;
+  double pipeline_ms() const { return pipeline_ms_; }  // kernels this instance compiled and created
 
  private:
   gpu::Context& ctx_;
@@ -75,10 +78,9 @@ class Svgf {
   // Temporaries: percentiles and two half-float ping-pong buffers. Previous-frame data: the history colour,
   // the moments (m1, m2, n) and the TAA output.
   gpu::Buffer params_buf_, percentiles_, temp_[2], history_, moments_, taa_;
-  std::unique_ptr<gpu::ComputePipeline> percentiles_pass_, accumulate_pass_, variance_pass_, filter_pass_,
-      taa_pass_;
-  std::string spv_dir_;
-  void create_pipelines();
+  gpu::Kernel percentiles_pass_, accumulate_pass_, variance_pass_, filter_pass_, taa_pass_;
+  double pipeline_ms_ = 0;
+  void create_kernels();
 };
 
 }  // namespace haze::denoise

@@ -16,7 +16,7 @@
 #include "eval/reference.hpp"
 #include "eval/sweep.hpp"
 #include "render/output.hpp"
-#include "volume/glsl.hpp"
+#include "shaders/glsl.hpp"
 
 namespace haze::eval {
 

@@ -14,6 +14,7 @@
 #include <optional>
 
 #include "gpu/error.hpp"
+#include "gpu/kernel.hpp"
 #include "gpu/vk_struct.hpp"
 
 namespace haze::gpu {
@@ -313,7 +314,8 @@ std::vector<std::string> Context::validation_log() const {
   return validation_log_;
 }
 
-Context::Context(const ContextOptions& options) : shaders_(options.shader_cache) {
+Context::Context(const ContextOptions& options)
+    : shaders_(options.shader_cache), kernels_(std::make_unique<KernelCache>(*this)) {
   try {
     std::string venv = lower(env("HAZE_VALIDATION"));
     bool sync = venv == "sync";
@@ -517,6 +519,7 @@ Context::~Context() {
 void Context::destroy() noexcept {
   if (device_) {
     vkDeviceWaitIdle(device_);
+    if (kernels_) kernels_->clear();
     if (fence_) vkDestroyFence(device_, fence_, nullptr);
     if (pool_) vkDestroyCommandPool(device_, pool_, nullptr);
     if (pipeline_cache_) vkDestroyPipelineCache(device_, pipeline_cache_, nullptr);

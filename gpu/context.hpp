@@ -7,6 +7,7 @@
 #include <atomic>
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <string>
@@ -16,6 +17,8 @@
 #include "gpu/shader_compiler.hpp"
 
 namespace haze::gpu {
+
+class KernelCache;
 
 struct ContextOptions {
   // "" -> env HAZE_DEVICE -> auto (discrete > integrated > virtual > cpu).
@@ -68,6 +71,8 @@ class Context {
   // GLSL -> SPIR-V for this context's pipelines (the embedded sources, cached in options.shader_cache).
   ShaderCompiler& shaders() { return shaders_; }
   const ShaderCompiler& shaders() const { return shaders_; }
+  // The pipelines of every kernel made on this context, created once (gpu/kernel.hpp).
+  KernelCache& kernels() { return *kernels_; }
 
   MemoryLedger& ledger() { return ledger_; }
   const MemoryLedger& ledger() const { return ledger_; }
@@ -129,6 +134,7 @@ class Context {
 
   MemoryLedger ledger_;
   ShaderCompiler shaders_;
+  std::unique_ptr<KernelCache> kernels_;
 
   std::atomic<uint64_t> validation_count_{0};
   mutable std::mutex log_mutex_;

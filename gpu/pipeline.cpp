@@ -244,10 +244,26 @@ ComputePipeline::ComputePipeline(Context& ctx, const std::string& spv_path, uint
 ComputePipeline::ComputePipeline(Context& ctx, const std::string& spv_path, std::vector<Slot> slots,
                                  uint32_t push_bytes, const std::vector<uint32_t>& spec_constants)
     : ctx_(&ctx), path_(spv_path), slots_(std::move(slots)), push_bytes_(push_bytes) {
+  check_layout();
+  create(read_spirv(spv_path), spec_constants);
+}
+
+ComputePipeline::ComputePipeline(Context& ctx, std::string name, const std::vector<uint32_t>& spirv,
+                                 std::vector<Slot> slots, uint32_t push_bytes,
+                                 const std::vector<uint32_t>& spec_constants)
+    : ctx_(&ctx), path_(std::move(name)), slots_(std::move(slots)), push_bytes_(push_bytes) {
+  check_layout();
+  if (spirv.size() < 5 || spirv[0] != kSpirvMagic)
+    throw Error(fmt::format("'{}' is not a SPIR-V module ({} words)", path_, spirv.size()));
+  create(spirv, spec_constants);
+}
+
+void ComputePipeline::check_layout() const {
+  const Context& ctx = *ctx_;
   uint32_t max_push = std::min(kMaxPushBytes, ctx.limits().maxPushConstantsSize);
-  if (push_bytes % 4 != 0 || push_bytes > max_push)
+  if (push_bytes_ % 4 != 0 || push_bytes_ > max_push)
     throw Error(fmt::format("pipeline '{}': push constants of {} bytes (must be a multiple of 4, at most {})",
-                            path_, push_bytes, max_push));
+                            path_, push_bytes_, max_push));
   const auto num_slots = static_cast<uint32_t>(slots_.size());
   if (num_slots > kMaxPushDescriptors)
     throw Error(fmt::format("pipeline '{}': {} bindings, at most {} can be pushed", path_, num_slots,
@@ -256,7 +272,13 @@ ComputePipeline::ComputePipeline(Context& ctx, const std::string& spv_path, std:
   if (num_images > ctx.limits().maxPerStageDescriptorStorageImages)
     throw Error(fmt::format("pipeline '{}': {} storage images, this device allows {} per shader stage", path_,
                             num_images, ctx.limits().maxPerStageDescriptorStorageImages));
-  auto words = read_spirv(spv_path);
+}
+
+void ComputePipeline::create(const std::vector<uint32_t>& words,
+                             const std::vector<uint32_t>& spec_constants) {
+  Context& ctx = *ctx_;
+  const uint32_t push_bytes = push_bytes_;
+  const auto num_slots = static_cast<uint32_t>(slots_.size());
   Reflection refl = reflect(words, spec_constants);
   image_formats_.assign(num_slots, VK_FORMAT_UNDEFINED);
   for (const BindingUse& u : refl.bindings) {

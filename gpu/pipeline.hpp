@@ -57,6 +57,9 @@ class ComputePipeline {
                   const std::vector<uint32_t>& spec_constants = {});
   ComputePipeline(Context& ctx, const std::string& spv_path, uint32_t num_buffers, uint32_t push_bytes,
                   const std::vector<uint32_t>& spec_constants = {});
+  // From SPIR-V words already in memory; `name` stands for the file in messages and object names.
+  ComputePipeline(Context& ctx, std::string name, const std::vector<uint32_t>& spirv, std::vector<Slot> slots,
+                  uint32_t push_bytes, const std::vector<uint32_t>& spec_constants = {});
   ~ComputePipeline();
   ComputePipeline(ComputePipeline&& other) noexcept;
   ComputePipeline& operator=(ComputePipeline&& other) noexcept;
@@ -80,7 +83,7 @@ class ComputePipeline {
                 uint32_t gy = 1, uint32_t gz = 1) const;
 
   double creation_ms() const { return creation_ms_; }  // wall time of vkCreateComputePipelines
-  const std::string& path() const { return path_; }
+  const std::string& path() const { return path_; }    // the SPIR-V file, or the name given
   // Workgroup size from the SPIR-V (LocalSize, or WorkgroupSize with the given spec constants); 0 if unknown.
   const std::array<uint32_t, 3>& local_size() const { return local_size_; }
   const std::vector<Slot>& slots() const { return slots_; }
@@ -90,6 +93,8 @@ class ComputePipeline {
   VkPipelineLayout layout() const { return layout_; }
 
  private:
+  void check_layout() const;  // push constant size, binding and image counts against the device
+  void create(const std::vector<uint32_t>& words, const std::vector<uint32_t>& spec_constants);
   void release() noexcept;
 
   Context* ctx_ = nullptr;

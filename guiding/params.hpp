@@ -1,4 +1,4 @@
-// Parameters of distance guiding (DESIGN.md section 3), declared once: the scene's JSON
+// Parameters of distance guiding (docs/guiding.md), declared once: the scene's JSON
 // (`guiding.probability`),
 // --set, the docs and stats.json all come from reflect() below.
 #pragma once

@@ -2,8 +2,6 @@
 
 #include <fmt/format.h>
 
-#include "volume/glsl.hpp"
-
 namespace haze::guiding {
 
 namespace {
@@ -14,17 +12,10 @@ struct Push {
   uint32_t depth_stride, depth_offset, media_count;
 };
 
-void require(const gpu::Buffer* b, uint64_t bytes, const char* what) {
-  if (!b || !b->valid()) throw gpu::Error(fmt::format("volume motion: the {} buffer is missing", what));
-  if (b->size() < bytes)
-    throw gpu::Error(fmt::format("volume motion: the {} buffer '{}' holds {} bytes, needs {}", what,
-                                 b->name(), b->size(), bytes));
-}
-
 }  // namespace
 
-VolumeMotion::VolumeMotion(gpu::Context& ctx, uint32_t width, uint32_t height, const std::string& spv_dir)
-    : width_(width), height_(height) {
+VolumeMotion::VolumeMotion(gpu::Context& ctx, uint32_t width, uint32_t height)
+    : ctx_(ctx), width_(width), height_(height) {
   if (!ctx.features().int64 || !ctx.features().buffer_int64_atomics)
     throw gpu::Error("volume motion needs shaderInt64 and shaderBufferInt64Atomics, which this device lacks");
   if (width == 0 || height == 0) throw gpu::Error("volume motion: empty image");
@@ -33,34 +24,61 @@ VolumeMotion::VolumeMotion(gpu::Context& ctx, uint32_t width, uint32_t height, c
                       "u64 per pixel (distance bits << 32 | source pixel)");
   output_ = gpu::Buffer(ctx, "volume motion", "volume motion", pixels * 16,
                         "4 x f32 per pixel (motion xy, distance change, landed)");
-  const std::string spv = gpu::variant_spv(spv_dir, "guiding/volume_motion.comp", 0);
-  splat_ = std::make_unique<gpu::ComputePipeline>(ctx, spv, 6, sizeof(Push), std::vector<uint32_t>{0});
-  resolve_ = std::make_unique<gpu::ComputePipeline>(ctx, spv, 6, sizeof(Push), std::vector<uint32_t>{1});
+  // Both kernels of the usual case (no moving media) up front, so that the first frame does not pay.
+  kernel(false, false);
+  kernel(true, false);
 }
 
 VolumeMotion::~VolumeMotion() = default;
 
-double VolumeMotion::pipeline_ms() const {
-  return splat_->creation_ms() + resolve_->creation_ms();
+const gpu::Kernel& VolumeMotion::kernel(bool resolve, bool moving) {
+  gpu::Kernel& k = kernels_[resolve][moving];
+  if (!k.valid()) {
+    const uint64_t pixels = uint64_t(width_) * height_;
+    gpu::KernelDecl d("guiding/volume_motion.comp");
+    d.buffer("scene", sizeof(glsl::GpuScene))
+        .buffer("prev_depth", pixels * 4)
+        .buffer("g_normal", pixels * 16, 16);
+    if (moving) d.buffer("media_motion", sizeof(glsl::MediumMotion), sizeof(glsl::MediumMotion));
+    d.buffer("keys", pixels * 8)
+        .buffer("motion", pixels * 16)
+        .push(sizeof(Push))
+        .specialize({resolve ? 1u : 0u});
+    k = gpu::Kernel(ctx_, std::move(d));
+    pipeline_ms_ += k.setup_ms();
+  }
+  return k;
 }
 
 void VolumeMotion::run(VkCommandBuffer cmd, gpu::Timer* timer, const VolumeMotionInputs& in) {
+  if (!in.scene || !in.prev_depth || !in.g_normal)
+    throw gpu::Error("volume motion: the scene, previous depth or g-buffer buffer is missing");
   const uint64_t pixels = uint64_t(width_) * height_;
-  require(in.scene, sizeof(::haze::glsl::GpuScene), "scene");
-  require(in.prev_depth, ((pixels - 1) * in.depth_stride + in.depth_offset + 1) * 4, "previous depth");
-  require(in.gbuffer, pixels * ::haze::glsl::G_STRIDE * 4, "g-buffer");
-  if (in.media_count > 0) require(in.media, in.media_count * sizeof(glsl::MediumMotion), "media motion");
-  // With no moving media the shader never reads binding 3, so any valid buffer can stand there.
-  const gpu::Buffer* media = in.media_count > 0 ? in.media : in.scene;
+  if (in.depth_stride == 0 || in.depth_offset >= in.depth_stride ||
+      in.prev_depth->size() < ((pixels - 1) * in.depth_stride + in.depth_offset + 1) * 4)
+    throw gpu::Error(
+        fmt::format("volume motion: previous depth buffer '{}' ({} bytes) does not hold {} pixels of "
+                    "stride {} with the depth at {}",
+                    in.prev_depth->name(), in.prev_depth->size(), pixels, in.depth_stride, in.depth_offset));
+  const bool moving = in.media_count > 0;
+  if (moving && (!in.media || in.media->size() < in.media_count * sizeof(glsl::MediumMotion)))
+    throw gpu::Error(
+        fmt::format("volume motion: {} moving media but their buffer holds fewer", in.media_count));
+  gpu::Bindings b;
+  b.set("scene", *in.scene).set("prev_depth", *in.prev_depth).set("g_normal", *in.g_normal);
+  b.set("keys", keys_).set("motion", output_);
+  if (moving) b.set("media_motion", *in.media);
   const Push push{glm::uvec2(width_, height_), in.depth_stride, in.depth_offset, in.media_count};
   const uint32_t gx = gpu::div_up(width_, 8), gy = gpu::div_up(height_, 8);
 
+  const gpu::Kernel& splat = kernel(false, moving);
+  const gpu::Kernel& resolve = kernel(true, moving);
   if (timer) timer->begin(cmd, "volume_motion");
   keys_.fill(cmd, 0xffffffffu);  // no point landed
   gpu::compute_barrier(cmd);
-  splat_->dispatch(cmd, {in.scene, in.prev_depth, in.gbuffer, media, &keys_, &output_}, &push, gx, gy);
+  splat.dispatch(cmd, b, &push, gx, gy);
   gpu::compute_barrier(cmd);
-  resolve_->dispatch(cmd, {in.scene, in.prev_depth, in.gbuffer, media, &keys_, &output_}, &push, gx, gy);
+  resolve.dispatch(cmd, b, &push, gx, gy);
   if (timer) timer->end(cmd);
   gpu::compute_barrier(cmd);
 }

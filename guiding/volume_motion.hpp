@@ -1,4 +1,4 @@
-// Volume motion vectors (DESIGN.md section 3, virtual points): the previous frame's virtual points projected
+// Volume motion vectors (docs/guiding.md, virtual points): the previous frame's virtual points projected
 // forward into the current camera. Per pixel: the motion of the nearest point that landed there and the
 // change of its distance along the ray (the guiding moments shift by it); pixels that receive no point keep
 // the G-buffer's surface motion.
@@ -6,20 +6,16 @@
 
 #include <cstdint>
 #include <glm/glm.hpp>
-#include <memory>
 #include <string>
 #include <vector>
 
 #include "gpu/gpu.hpp"
+#include "gpu/kernel.hpp"
+#include "shaders/glsl.hpp"
 
 namespace haze::guiding {
 
-// shaders/guiding/volume_motion_layout.glsl compiled as C++.
-namespace glsl {
-using namespace glm;
-#include "shaders/guiding/volume_motion_layout.glsl"
-static_assert(sizeof(MediumMotion) == 6 * 16);
-}  // namespace glsl
+static_assert(sizeof(glsl::MediumMotion) == 6 * 16);
 
 struct VolumeMotionInputs {
   const gpu::Buffer* scene = nullptr;  // GpuScene: cam_* this frame's camera, prev_cam_* the previous one's
@@ -27,8 +23,9 @@ struct VolumeMotionInputs {
   // finite) where there is none; `depth_stride` floats per pixel, the depth at `depth_offset`.
   const gpu::Buffer* prev_depth = nullptr;
   uint32_t depth_stride = 1, depth_offset = 0;
-  const gpu::Buffer* gbuffer = nullptr;  // this frame's (G_MOTION is the fallback)
-  // glsl::MediumMotion per medium, `media_count` of them; nullptr (with count 0): static media.
+  // This frame's G-buffer layer g_normal (oct normal, motion: the fallback), 16 bytes a pixel.
+  const gpu::Buffer* g_normal = nullptr;
+  // glsl::MediumMotion per medium that moved, `media_count` of them; nullptr (with count 0): none moved.
   const gpu::Buffer* media = nullptr;
   uint32_t media_count = 0;
 };
@@ -37,7 +34,7 @@ class VolumeMotion {
  public:
   // Needs 64-bit buffer atomics (throws gpu::Error without them). Both frames are width x height; the
   // GpuScene's size is not read.
-  VolumeMotion(gpu::Context& ctx, uint32_t width, uint32_t height, const std::string& spv_dir);
+  VolumeMotion(gpu::Context& ctx, uint32_t width, uint32_t height);
   ~VolumeMotion();
 
   // Records the passes (timer scope "volume_motion" when a timer is given); ends with a compute barrier.
@@ -49,13 +46,17 @@ class VolumeMotion {
   std::vector<glm::vec4> download() const { return output_.download_vector<glm::vec4>(); }
   uint32_t width() const { return width_; }
   uint32_t height() const { return height_; }
-  double pipeline_ms() const;
+  double pipeline_ms() const { return pipeline_ms_; }  // kernels this object compiled and created
 
  private:
+  gpu::Context& ctx_;
   uint32_t width_, height_;
   gpu::Buffer keys_;    // per pixel: (distance bits << 32 | source pixel) of the nearest point, atomicMin
   gpu::Buffer output_;  // vec4 per pixel
-  std::unique_ptr<gpu::ComputePipeline> splat_, resolve_;
+  double pipeline_ms_ = 0;
+  // Splat and resolve, without and with moving media.
+  const gpu::Kernel& kernel(bool resolve, bool moving);
+  gpu::Kernel kernels_[2][2];
 };
 
 }  // namespace haze::guiding

@@ -10,7 +10,7 @@
 #include "denoise/svgf.hpp"
 #include "render/output.hpp"
 #include "render/renderer.hpp"
-#include "volume/glsl.hpp"
+#include "shaders/glsl.hpp"
 
 namespace haze::render {
 
@@ -137,11 +137,10 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
         fmt::format("--out {} is the input folder; choose another so that no frame is overwritten", out_dir));
   ensure_writable_dir(out_dir);
 
-  const std::string spv = spv_dir();
   std::unique_ptr<denoise::Svgf> svgf;
-  gpu::Buffer colour, gbuf, prev, volume, ldr;
-  gpu::ComputePipeline tonemap(ctx, gpu::variant_spv(spv, "denoise/tonemap.comp", 0), 3, sizeof(TonemapPush),
-                               {1u, 0u});
+  gpu::Buffer colour, volume, ldr;
+  gpu::PixelLayers gbuf, prev;
+  gpu::Kernel tonemap;
   gpu::Timer timer(ctx);
   std::map<std::string, std::vector<double>> times;
   int W = 0, H = 0;
@@ -155,11 +154,11 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
       const size_t pixels = size_t(W) * H;
       colour = gpu::Buffer(ctx, "input colour", "per-frame temporaries", pixels * 12, "3 x f32");
       volume = gpu::Buffer(ctx, "input volume", "per-frame temporaries", pixels * 12, "3 x f32");
-      gbuf = gpu::Buffer(ctx, "g-buffer", "per-frame temporaries", pixels * glsl::G_STRIDE * 4, "G_* layout");
-      prev = gpu::Buffer(ctx, "previous g-buffer", "previous-frame data", pixels * glsl::G_STRIDE * 4,
-                         "G_* layout");
+      gbuf = gpu::PixelLayers(ctx, "g-buffer", "per-frame temporaries", pixels, kGBufferLayers);
+      prev = gpu::PixelLayers(ctx, "previous g-buffer", "previous-frame data", pixels, kPrevGBufferLayers);
+      tonemap = gpu::Kernel(ctx, tonemap_decl(pixels, true, false));
       ldr = gpu::Buffer(ctx, "preview", "outputs", pixels * 4, "RGBA8");
-      svgf = std::make_unique<denoise::Svgf>(ctx, "surface", settings.denoise.surface, W, H, true, spv);
+      svgf = std::make_unique<denoise::Svgf>(ctx, "surface", settings.denoise.surface, W, H, true);
     } else if (img.width != W || img.height != H) {
       throw Error(fmt::format("{}: {}x{} differs from the first frame's {}x{}; a sequence has one size", file,
                               img.width, img.height, W, H));
@@ -172,13 +171,15 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
     const TonemapPush tp = tonemap_push(settings.render, uint32_t(W * H), {0, 0}, {3, 0});
     ctx.submit_and_wait([&](VkCommandBuffer cmd) {
       timer.reset(cmd);
-      denoise::SvgfInputs si{&colour, 3, 0, &gbuf, &prev, &gbuf, glsl::G_STRIDE, glsl::G_MOTION};
+      denoise::SvgfInputs si{&colour, 3, 0, &gbuf, &prev, &gbuf[glsl::G_MOTION / 4], 4, glsl::G_MOTION % 4};
       svgf->run(cmd, &timer, si);
       timer.begin(cmd, "tonemap");
-      tonemap.dispatch(cmd, {&svgf->output(), &volume, &ldr}, &tp, (tp.pixels + 63) / 64);
+      gpu::Bindings b;
+      b.set("surface", svgf->output()).set("volume", volume).set("ldr", ldr);
+      tonemap.dispatch(cmd, b, &tp, tonemap.groups_1d(tp.pixels));
       timer.end(cmd);
       gpu::compute_barrier(cmd);
-      gpu::copy_buffer(cmd, gbuf, prev);
+      gbuf.copy_to(cmd, prev);
     });
     double total = 0;
     for (auto& [pass, ms] : timer.read_ms()) {

@@ -3,19 +3,31 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
-#include <cstdlib>
-
-#ifndef HAZE_DEFAULT_SPV_DIR
-#define HAZE_DEFAULT_SPV_DIR "spv"
-#endif
 
 namespace haze::render {
 
-std::string spv_dir() {
-  if (const char* e = std::getenv("HAZE_SPV_DIR"); e && *e) return e;
-  return HAZE_DEFAULT_SPV_DIR;
+const std::vector<std::string> kAccumulationLayers = {
+    "acc_l", "acc_l2", "acc_vol", "acc_vol2", "acc_surf", "acc_surf2", "acc_demod", "acc_demod2", "acc_vp"};
+const std::vector<std::string> kResolvedLayers = {"out_l",   "out_vol",   "out_surf",
+                                                  "out_var", "out_demod", "out_demod_m2"};
+const std::vector<std::string> kGBufferLayers = {"g_depth", "g_normal", "g_albedo"};
+const std::vector<std::string> kPrevGBufferLayers = {"prev_g_depth", "prev_g_normal", "prev_g_albedo"};
+
+namespace {
+
+// The host offsets of the GLSL headers and the layer lists above describe the same layers.
+static_assert(glsl::ACC_STRIDE == 4 * 9 && glsl::ACC_VP_WT == 4 * 8);
+static_assert(glsl::OUT_STRIDE == 4 * 6 && glsl::OUT_VPDEPTH == 4 * 1 + 3 && glsl::OUT_DEMOD == 4 * 4);
+static_assert(glsl::G_STRIDE == 4 * 3 && glsl::G_MOTION == 4 * 1 + 2);
+
+// Where a layer's float `offset` (OUT_*, G_*) lives: the layer's index.
+uint32_t layer_of(uint32_t offset) {
+  return offset / 4;
 }
+
+}  // namespace
 
 double median(std::vector<double> v) {
   if (v.empty()) return 0;
@@ -39,205 +51,137 @@ nlohmann::json PassStats::to_json() const {
   return j;
 }
 
+CameraBasis camera_basis(const scene::Camera& c, const scene::RenderSettings& r) {
+  glm::vec3 fwd = glm::normalize(c.target - c.position);
+  glm::vec3 right = glm::normalize(glm::cross(fwd, c.up));
+  glm::vec3 up = glm::cross(right, fwd);
+  float tan_half = std::tan(glm::radians(c.fov_y) * 0.5f);
+  float aspect = float(r.width) / float(r.height);
+  return {glm::vec4(c.position, 0), glm::vec4(right * tan_half * aspect, 0), glm::vec4(up * tan_half, 0),
+          glm::vec4(fwd, 0)};
+}
+
+TonemapPush tonemap_push(const scene::RenderSettings& r, uint32_t pixels, glm::uvec2 surface_layout,
+                         glm::uvec2 volume_layout) {
+  const uint32_t op = r.tonemap == "aces" ? 0u : (r.tonemap == "reinhard" ? 1u : 2u);
+  return {pixels, surface_layout.x, surface_layout.y, volume_layout.x, volume_layout.y, std::exp2(r.exposure),
+          op};
+}
+
+gpu::KernelDecl tonemap_decl(uint64_t pixels, bool surface_half, bool volume_half) {
+  gpu::KernelDecl d("denoise/tonemap.comp");
+  d.buffer("surface", pixels * (surface_half ? 8 : 12))
+      .buffer("volume", pixels * (volume_half ? 8 : 12))
+      .buffer("ldr", pixels * 4)
+      .push(sizeof(TonemapPush))
+      .specialize({surface_half ? 1u : 0u, volume_half ? 1u : 0u});
+  return d;
+}
+
 Renderer::Renderer(gpu::Context& ctx, const scene::Scene& s, uint32_t frame, const scene::Scene* prev)
-    : ctx_(ctx), scene_(s) {
+    : ctx_(ctx), scene_(s), media_(ctx), surfaces_(ctx), lights_(ctx), guide_(ctx) {
   timer_ = std::make_unique<gpu::Timer>(ctx, 48);
-  set_scene(s, frame, prev);
+  shaders_at_start_ = ctx.shaders().stats();
+  load(s, frame, prev, true);
 }
 
-const gpu::ComputePipeline* Renderer::pipeline(const std::string& spv, uint32_t num_buffers,
-                                               uint32_t push_bytes, const std::vector<uint32_t>& spec) {
-  std::string key = spv;
-  for (uint32_t c : spec) key += fmt::format("#{}", c);
-  auto& p = pipelines_[key];
-  if (!p) {
-    p = std::make_unique<gpu::ComputePipeline>(ctx_, spv, num_buffers, push_bytes, spec);
-    pipeline_ms_ += p->creation_ms();
-  }
-  return p.get();
-}
+Renderer::~Renderer() = default;
 
-void Renderer::ensure(gpu::Buffer& b, const char* name, const char* category, uint64_t bytes,
-                      const std::string& format) {
-  if (!b.valid() || b.size() != bytes) b = gpu::Buffer(ctx_, name, category, bytes, format);
+gpu::Kernel Renderer::kernel(gpu::KernelDecl decl) {
+  gpu::Kernel k(ctx_, std::move(decl));
+  pipeline_ms_ += k.setup_ms();
+  return k;
 }
 
 void Renderer::set_scene(const scene::Scene& s, uint32_t frame, const scene::Scene* prev) {
-  scene_ = s;
-  features_ = volume::features_of(s);
-  media_ = volume::build_media(s, &media_);
-  geometry_ = surfaces::build_geometry(s, &geometry_);
-  std::vector<glsl::GpuLight> lights = volume::build_lights(s);
-  size_t num_local = s.lights.points.size() + s.lights.spots.size();
-  // Emissive triangles go after the point and spot lights (which equi-angular sampling walks).
-  std::vector<glsl::GpuLight> tri_lights;
-  for (const auto& e : geometry_.emitters) {
-    glsl::GpuLight l{};
-    l.position = glm::vec4(e.v0, float(glsl::LIGHT_TRIANGLE));
-    l.radiance = glm::vec4(e.radiance, 0);
-    l.direction = glm::vec4(e.v1, 0);
-    l.params = glm::vec4(e.v2, 0);
-    tri_lights.push_back(l);
-  }
-  lights.insert(lights.begin() + num_local, tri_lights.begin(), tri_lights.end());
-  num_lights_ = lights.size();
+  load(s, frame, prev, false);
+}
+
+void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* prev, bool fresh) {
   const scene::Scene& p = prev ? *prev : s;
-  glsl::GpuScene gs = volume::build_gpu_scene(s, media_, lights.size(), num_local, frame, &p.camera);
-  size_t pixels = size_t(s.render.width) * s.render.height;
+  scene_ = s;
+  media_.update(s, p);
+  surfaces_.update(s, p);
+  std::vector<lights::Emitter> emitters;
+  for (const auto& e : surfaces_.geometry().emitters) emitters.push_back({e.v0, e.v1, e.v2, e.radiance});
+  lights_.update(s.lights, emitters);
+  // Guiding learns where light scatters towards the camera: it needs a medium and a light.
+  const bool guided = s.guiding.enabled && media_.any() && lights_.any();
+  guide_.update(s.guiding, uint32_t(s.render.width), uint32_t(s.render.height), guided, fresh);
 
-  ensure(scene_buf_, "scene", "scene data", sizeof(gs), "GpuScene");
-  scene_buf_.upload(&gs, sizeof(gs));
-  ensure(accum_buf_, "accumulation", "per-frame temporaries", pixels * glsl::ACC_STRIDE * 4,
-         fmt::format("{} x f32 per pixel", glsl::ACC_STRIDE));
-  accum_buf_.fill_zero();
+  // The scene block: the camera and settings here, each part's share from the part.
+  glsl::GpuScene g{};
+  const CameraBasis cb = camera_basis(s.camera, s.render), pb = camera_basis(p.camera, s.render);
+  g.cam_position = cb.position;
+  g.cam_right = cb.right;
+  g.cam_up = cb.up;
+  g.cam_forward = cb.forward;
+  g.prev_cam_position = pb.position;
+  g.prev_cam_right = pb.right;
+  g.prev_cam_up = pb.up;
+  g.prev_cam_forward = pb.forward;
+  g.size = glm::uvec4(s.render.width, s.render.height, s.render.volume_samples, s.render.max_depth);
+  g.counts.w = s.render.seed ^ (frame * 0x9e3779b9u);
+  g.settings = glm::vec4(s.render.equiangular_probability, s.render.rr_threshold,
+                         s.render.pixel_jitter ? 1.f : 0.f, 0);
+  media_.fill(g);
+  lights_.fill(g);
+  surfaces_.fill(g);
+  guide_.fill(g);
+  if (!scene_buf_.valid()) scene_buf_ = gpu::Buffer(ctx_, "scene", "scene data", sizeof(g), "GpuScene");
+  scene_buf_.upload(&g, sizeof(g));
+
+  // The frame's layers, remade only when the size changes.
+  const uint64_t pixels = uint64_t(s.render.width) * s.render.height;
+  if (accum_.pixels() != pixels) {
+    accum_ = gpu::PixelLayers(ctx_, "accumulation", "per-frame temporaries", pixels, kAccumulationLayers);
+    out_ = gpu::PixelLayers(ctx_, "resolved", "outputs", pixels, kResolvedLayers);
+    gbuffer_ = gpu::PixelLayers(ctx_, "g-buffer", "per-frame temporaries", pixels, kGBufferLayers);
+    prev_gbuffer_ =
+        gpu::PixelLayers(ctx_, "previous g-buffer", "previous-frame data", pixels, kPrevGBufferLayers);
+    ldr_ = gpu::Buffer(ctx_, "preview", "outputs", pixels * 4, "RGBA8");
+    has_frame_ = false;  // the resolved layers keep the last frame's virtual point depth for volume motion
+  }
+  accum_.fill_zero();
   samples_ = 0;
-  // The resolved layers keep the last frame's virtual point depth for the next frame's volume motion.
-  if (!out_buf_.valid() || out_buf_.size() != pixels * glsl::OUT_STRIDE * 4) has_frame_ = false;
-  ensure(out_buf_, "resolved layers", "outputs", pixels * glsl::OUT_STRIDE * 4,
-         fmt::format("{} x f32 per pixel", glsl::OUT_STRIDE));
-  ensure(ldr_buf_, "preview", "outputs", pixels * 4, "RGBA8");
-  // Buffers exist only for the features the scene uses.
-  if (features_.lights()) {
-    ensure(lights_buf_, "lights", "scene data", lights.size() * sizeof(glsl::GpuLight), "GpuLight");
-    lights_buf_.upload(lights);
-  } else {
-    lights_buf_ = gpu::Buffer();
-  }
-  if (features_.hetero) {
-    ensure(nanovdb_buf_, "nanovdb grids", "scene data", media_.nanovdb.size() * 4, "NanoVDB");
-    nanovdb_buf_.upload(media_.nanovdb);
-    ensure(media_buf_, "media", "scene data", media_.media.size() * sizeof(glsl::GpuMedium), "GpuMedium");
-    media_buf_.upload(media_.media);
-    ensure(majorant_buf_, "majorant grid", "scene data", media_.majorant.sigma_max.size() * 4,
-           fmt::format("f32 {}x{}x{}", media_.majorant.res.x, media_.majorant.res.y, media_.majorant.res.z));
-    majorant_buf_.upload(media_.majorant.sigma_max);
-  } else {
-    nanovdb_buf_ = gpu::Buffer();
-    media_buf_ = gpu::Buffer();
-    majorant_buf_ = gpu::Buffer();
-  }
 
-  if (features_.surfaces) {
-    const auto& bvh = geometry_.bvh;
-    ensure(bvh_nodes_buf_, "bvh nodes", "scene data", bvh.nodes.size() * sizeof(glsl::GpuBvhNode),
-           "GpuBvhNode");
-    bvh_nodes_buf_.upload(bvh.nodes);
-    ensure(bvh_tris_buf_, "bvh triangles", "scene data", bvh.triangles.size() * sizeof(glsl::GpuTriangle),
-           "GpuTriangle");
-    bvh_tris_buf_.upload(bvh.triangles);
-    std::vector<glm::uvec4> placement;
-    std::vector<glm::uvec2> texels = surfaces::packed_texels(geometry_, &placement);
-    std::vector<glsl::GpuInstance> inst;
-    for (size_t i = 0; i < s.surfaces.size(); ++i) {
-      glsl::GpuInstance g{};
-      if (geometry_.instance_texture[i] >= 0) g.texture = placement[size_t(geometry_.instance_texture[i])];
-      g.albedo = glm::vec4(s.surfaces[i].albedo, 0);
-      g.emission = glm::vec4(s.surfaces[i].emission, 0);
-      glm::mat4 now = s.surfaces[i].transform.matrix();
-      glm::mat4 before = i < p.surfaces.size() ? p.surfaces[i].transform.matrix() : now;
-      g.world_to_prev_world = glm::mat4(glm::dmat4(before) * glm::inverse(glm::dmat4(now)));
-      inst.push_back(g);
-    }
-    ensure(instances_buf_, "instances", "scene data", inst.size() * sizeof(glsl::GpuInstance), "GpuInstance");
-    instances_buf_.upload(inst);
-    if (features_.texture) {
-      ensure(triangle_uvs_buf_, "triangle uvs", "scene data",
-             geometry_.triangle_uvs.size() * sizeof(glsl::GpuTriangleUv), "GpuTriangleUv");
-      triangle_uvs_buf_.upload(geometry_.triangle_uvs);
-      ensure(texels_buf_, "albedo textures", "scene data", texels.size() * sizeof(glm::uvec2),
-             fmt::format("RGB unorm16, {} textures", placement.size()));
-      texels_buf_.upload(texels);
-    } else {
-      triangle_uvs_buf_ = gpu::Buffer();
-      texels_buf_ = gpu::Buffer();
-    }
-  } else {
-    bvh_nodes_buf_ = gpu::Buffer();
-    bvh_tris_buf_ = gpu::Buffer();
-    instances_buf_ = gpu::Buffer();
-    triangle_uvs_buf_ = gpu::Buffer();
-    texels_buf_ = gpu::Buffer();
-  }
-  ensure(gbuffer_buf_, "g-buffer", "per-frame temporaries", pixels * glsl::G_STRIDE * 4,
-         fmt::format("{} x f32 per pixel", glsl::G_STRIDE));
-  ensure(prev_gbuffer_buf_, "previous g-buffer", "previous-frame data", pixels * glsl::G_STRIDE * 4,
-         fmt::format("{} x f32 per pixel", glsl::G_STRIDE));
+  // The kernels of exactly this scene's features.
+  gpu::KernelDecl t("volume/trace.comp");
+  t.buffer("scene", sizeof(g));
+  accum_.declare(t);
+  media_.declare(t);
+  lights_.declare(t);
+  if (s.render.max_depth > 1) t.define("HAZE_MULTI");
+  surfaces_.declare(t);
+  guide_.declare(t);
+  trace_ = kernel(std::move(t.push(4)));
+  gpu::KernelDecl r("volume/resolve.comp");
+  accum_.declare(r);
+  out_.declare(r);
+  resolve_ = kernel(std::move(r.buffer("ldr", pixels * 4).push(16)));
+  gpu::KernelDecl gb("surfaces/gbuffer.comp");
+  gb.buffer("scene", sizeof(g));
+  gbuffer_.declare(gb);
+  surfaces_.declare(gb);
+  gbuffer_pass_ = kernel(std::move(gb));
 
-  const bool media = features_.hetero || features_.haze;
-  if (features_.guiding) {
-    glm::uvec2 grid = volume::guide_grid_size(s);
-    uint64_t bytes = uint64_t(grid.x) * grid.y * uint32_t(s.guiding.states) * 16;
-    if (!guide_buf_.valid() || guide_buf_.size() != bytes) {
-      const std::string format =
-          fmt::format("{}x{} vertices x {} states x vec4", grid.x, grid.y, s.guiding.states);
-      guide_buf_ = gpu::Buffer(ctx_, "guiding states", "guiding state", bytes, format);
-      guide_prev_buf_ = gpu::Buffer(ctx_, "guiding states (previous frame)", "guiding state", bytes, format);
-      guide_buf_.fill_zero();
-    }
-  } else {
-    guide_buf_ = gpu::Buffer();
-    guide_prev_buf_ = gpu::Buffer();
-  }
-
-  // How each VDB medium moved since the previous frame, for the virtual points inside it.
-  std::vector<guiding::glsl::MediumMotion> moved;
-  for (size_t i = 0; i < s.media.size() && i < p.media.size() && i < media_.media.size(); ++i) {
-    glm::dmat4 now = s.media[i].transform.matrix(), before = p.media[i].transform.matrix();
-    if (now == before) continue;
-    guiding::glsl::MediumMotion m{};
-    glm::dmat4 prev_to_now = now * glm::inverse(before), now_to_prev = before * glm::inverse(now);
-    m.prev_world_to_world = glm::mat4(prev_to_now);
-    glm::dvec3 lo(1e300), hi(-1e300);
-    const glm::dvec3 a(media_.media[i].world_min), b(media_.media[i].world_max);
-    for (int c = 0; c < 8; ++c) {
-      glm::dvec3 corner(c & 1 ? b.x : a.x, c & 2 ? b.y : a.y, c & 4 ? b.z : a.z);
-      glm::dvec3 q = glm::dvec3(now_to_prev * glm::dvec4(corner, 1));
-      lo = glm::min(lo, q);
-      hi = glm::max(hi, q);
-    }
-    m.prev_min = glm::vec4(glm::vec3(lo), 0);
-    m.prev_max = glm::vec4(glm::vec3(hi), 0);
-    moved.push_back(m);
-  }
-  moving_media_ = uint32_t(moved.size());
-  if (!moved.empty()) {
-    ensure(media_motion_buf_, "media motion", "scene data", moved.size() * sizeof(moved[0]), "MediumMotion");
-    media_motion_buf_.upload(moved);
-  } else {
-    media_motion_buf_ = gpu::Buffer();
-  }
-
-  const uint32_t surface_buffers = features_.surfaces ? (features_.texture ? 5 : 3) : 0;
-  uint32_t num_buffers = 2 + (features_.lights() ? 1 : 0) + (features_.hetero ? 3 : 0) + surface_buffers +
-                         (features_.guiding ? 1 : 0);
-  std::string dir = spv_dir();
-  trace_ = pipeline(fmt::format("{}/volume/trace.comp.{}.spv", dir, features_.mask()), num_buffers, 4);
-  resolve_ = pipeline(fmt::format("{}/volume/resolve.comp.0.spv", dir), 3, 16);
-  gbuffer_ = pipeline(fmt::format("{}/surfaces/gbuffer.comp.{}.spv", dir, features_.gbuffer_mask()),
-                      2 + surface_buffers, 0);
-
-  // The surface denoiser keeps its history across frames of the same size.
   // The surface instance on the demodulated surface signal; the volume instance on the volume signal with
-  // albedo 1 and the volume motion vectors.
-  keep_svgf(svgf_surface_, "surface", features_.surfaces && s.denoise.surface.enabled, s.denoise.surface,
-            true);
-  keep_svgf(svgf_volume_, "volume", media && s.denoise.volume.enabled, s.denoise.volume, false);
+  // albedo 1 and the volume motion vectors. Each keeps its history across frames of the same size.
+  keep_svgf(svgf_surface_, "surface", surfaces_.any() && s.denoise.surface.enabled, s.denoise.surface, true);
+  keep_svgf(svgf_volume_, "volume", media_.any() && s.denoise.volume.enabled, s.denoise.volume, false);
   if (svgf_surface_ || svgf_volume_)
-    tonemap_ = pipeline(fmt::format("{}/denoise/tonemap.comp.0.spv", dir), 3, sizeof(TonemapPush),
-                        {svgf_surface_ ? 1u : 0u, svgf_volume_ ? 1u : 0u});
+    tonemap_ = kernel(tonemap_decl(pixels, bool(svgf_surface_), bool(svgf_volume_)));
   const bool virtual_points = svgf_volume_ && s.denoise.volume_motion == "virtual_points";
-  if (virtual_points || (features_.guiding && s.guiding.temporal)) {
+  if (virtual_points || (guide_.active() && s.guiding.temporal)) {
     if (!volume_motion_ || volume_motion_->width() != uint32_t(s.render.width) ||
         volume_motion_->height() != uint32_t(s.render.height)) {
       volume_motion_.reset();
-      volume_motion_ = std::make_unique<guiding::VolumeMotion>(ctx_, s.render.width, s.render.height, dir);
+      volume_motion_ = std::make_unique<guiding::VolumeMotion>(ctx_, s.render.width, s.render.height);
       pipeline_ms_ += volume_motion_->pipeline_ms();
     }
   } else {
     volume_motion_.reset();
   }
-  guide_reproject_ =
-      features_.guiding ? pipeline(fmt::format("{}/guiding/guide_reproject.comp.0.spv", dir), 4, 0) : nullptr;
 }
 
 void Renderer::restart(const scene::Scene& s, uint32_t frame, const scene::Scene* prev) {
@@ -246,7 +190,8 @@ void Renderer::restart(const scene::Scene& s, uint32_t frame, const scene::Scene
   has_frame_ = false;
   passes_.clear();
   pipeline_ms_ = 0;
-  set_scene(s, frame, prev);
+  shaders_at_start_ = ctx_.shaders().stats();
+  load(s, frame, prev, true);
 }
 
 void Renderer::keep_svgf(std::unique_ptr<denoise::Svgf>& svgf, const char* name, bool wanted,
@@ -258,24 +203,26 @@ void Renderer::keep_svgf(std::unique_ptr<denoise::Svgf>& svgf, const char* name,
     svgf->set_params(params);
   } else {
     svgf.reset();
-    svgf = std::make_unique<denoise::Svgf>(ctx_, name, params, r.width, r.height, remodulate, spv_dir());
+    svgf = std::make_unique<denoise::Svgf>(ctx_, name, params, r.width, r.height, remodulate);
     pipeline_ms_ += svgf->pipeline_ms();
   }
 }
 
-TonemapPush tonemap_push(const scene::RenderSettings& r, uint32_t pixels, glm::uvec2 surface_layout,
-                         glm::uvec2 volume_layout) {
-  const uint32_t op = r.tonemap == "aces" ? 0u : (r.tonemap == "reinhard" ? 1u : 2u);
-  return {pixels, surface_layout.x, surface_layout.y, volume_layout.x, volume_layout.y, std::exp2(r.exposure),
-          op};
+bool Renderer::has_feature(std::string_view name) const {
+  return trace_.decl().defined("HAZE_" + std::string(name));
 }
 
-Renderer::~Renderer() = default;
-
-void Renderer::append_surface_buffers(std::vector<const gpu::Buffer*>& b) const {
-  if (!features_.surfaces) return;
-  b.insert(b.end(), {&bvh_nodes_buf_, &bvh_tris_buf_, &instances_buf_});
-  if (features_.texture) b.insert(b.end(), {&triangle_uvs_buf_, &texels_buf_});
+gpu::Bindings Renderer::frame_bindings() const {
+  gpu::Bindings b;
+  b.set("scene", scene_buf_).set("ldr", ldr_);
+  accum_.bind(b);
+  out_.bind(b);
+  gbuffer_.bind(b);
+  media_.bind(b);
+  lights_.bind(b);
+  surfaces_.bind(b);
+  guide_.bind(b);
+  return b;
 }
 
 void Renderer::record_times() {
@@ -284,67 +231,44 @@ void Renderer::record_times() {
 
 void Renderer::start_frame(VkCommandBuffer cmd) {
   const auto& r = scene_.render;
-  uint32_t gx = (uint32_t(r.width) + 7) / 8, gy = (uint32_t(r.height) + 7) / 8;
   // Keep the last frame's G-buffer, then write this one's.
-  gpu::copy_buffer(cmd, gbuffer_buf_, prev_gbuffer_buf_);
+  gbuffer_.copy_to(cmd, prev_gbuffer_);
   gpu::compute_barrier(cmd);
   timer_->begin(cmd, "gbuffer");
-  std::vector<const gpu::Buffer*> gb = {&scene_buf_, &gbuffer_buf_};
-  append_surface_buffers(gb);
-  gbuffer_->dispatch(cmd, gb, nullptr, gx, gy);
+  const auto [gx, gy] = gbuffer_pass_.groups_2d(uint32_t(r.width), uint32_t(r.height));
+  gbuffer_pass_.dispatch(cmd, frame_bindings(), nullptr, gx, gy);
   timer_->end(cmd);
   gpu::compute_barrier(cmd);
   if (volume_motion_) {
-    // out_buf_ still holds the previous frame's resolve; without one, no point is projected.
-    if (!has_frame_) out_buf_.fill_zero(cmd);
+    // The resolved layers still hold the previous frame's; without one, no point is projected.
+    if (!has_frame_) out_.fill_zero(cmd);
     guiding::VolumeMotionInputs in;
     in.scene = &scene_buf_;
-    in.prev_depth = &out_buf_;
-    in.depth_stride = glsl::OUT_STRIDE;
-    in.depth_offset = glsl::OUT_VPDEPTH;
-    in.gbuffer = &gbuffer_buf_;
-    in.media = moving_media_ ? &media_motion_buf_ : nullptr;
-    in.media_count = moving_media_;
+    in.prev_depth = &out_[layer_of(glsl::OUT_VPDEPTH)];
+    in.depth_stride = 4;
+    in.depth_offset = glsl::OUT_VPDEPTH % 4;
+    in.g_normal = &gbuffer_[layer_of(glsl::G_MOTION)];
+    in.media = media_.motion();
+    in.media_count = media_.moving();
     volume_motion_->run(cmd, timer_.get(), in);
   }
-  if (features_.guiding) {
-    if (!scene_.guiding.temporal) {
-      guide_buf_.fill_zero(cmd);
-    } else if (has_frame_) {
-      // Each vertex takes the states of the previous frame's vertex its virtual point came from.
-      std::swap(guide_buf_, guide_prev_buf_);
-      timer_->begin(cmd, "guide_reproject");
-      const glm::uvec2 grid = volume::guide_grid_size(scene_);
-      const uint32_t states = grid.x * grid.y * uint32_t(scene_.guiding.states);
-      guide_reproject_->dispatch(cmd, {&scene_buf_, &volume_motion_->output(), &guide_prev_buf_, &guide_buf_},
-                                 nullptr, (states + 63) / 64);
-      timer_->end(cmd);
-    }
-    gpu::compute_barrier(cmd);
-  }
+  guide_.start_frame(cmd, timer_.get(), scene_buf_, volume_motion_ ? &volume_motion_->output() : nullptr,
+                     has_frame_);
 }
 
 void Renderer::add_samples(int n, const std::function<void(int, int)>& progress) {
   const auto& r = scene_.render;
-  uint32_t gx = (uint32_t(r.width) + 7) / 8, gy = (uint32_t(r.height) + 7) / 8;
+  const auto [gx, gy] = trace_.groups_2d(uint32_t(r.width), uint32_t(r.height));
+  const gpu::Bindings b = frame_bindings();
   for (int i = 0; i < n; ++i) {
     uint32_t sample_index = uint32_t(samples_);
     ctx_.submit_and_wait([&](VkCommandBuffer cmd) {
       timer_->reset(cmd);
       if (samples_ == 0) start_frame(cmd);
       timer_->begin(cmd, "trace");
-      std::vector<const gpu::Buffer*> b = {&scene_buf_, &accum_buf_};
-      if (features_.lights()) b.push_back(&lights_buf_);
-      if (features_.hetero) {
-        b.push_back(&nanovdb_buf_);
-        b.push_back(&media_buf_);
-        b.push_back(&majorant_buf_);
-      }
-      append_surface_buffers(b);
-      if (features_.guiding) b.push_back(&guide_buf_);
-      trace_->dispatch(cmd, b, &sample_index, gx, gy);
+      trace_.dispatch(cmd, b, &sample_index, gx, gy);
       // The next sample reads the states this one wrote.
-      if (features_.guiding) gpu::compute_barrier(cmd);
+      if (guide_.active()) gpu::compute_barrier(cmd);
       timer_->end(cmd);
     });
     record_times();
@@ -357,8 +281,10 @@ Image Renderer::resolve() {
   const auto& r = scene_.render;
   uint32_t pixels = uint32_t(r.width) * uint32_t(r.height);
   // The preview composites the denoised signals (or the noisy one where an instance does not run).
-  const TonemapPush tp = tonemap_push(r, pixels, glm::uvec2(glsl::OUT_STRIDE, glsl::OUT_SURF),
-                                      glm::uvec2(glsl::OUT_STRIDE, glsl::OUT_VOL));
+  const gpu::Buffer& surf = out_[layer_of(glsl::OUT_SURF)];
+  const gpu::Buffer& vol = out_[layer_of(glsl::OUT_VOL)];
+  const TonemapPush tp =
+      tonemap_push(r, pixels, glm::uvec2(4, glsl::OUT_SURF % 4), glm::uvec2(4, glsl::OUT_VOL % 4));
   struct {
     uint32_t pixels, samples;
     float exposure_scale;
@@ -367,24 +293,25 @@ Image Renderer::resolve() {
   ctx_.submit_and_wait([&](VkCommandBuffer cmd) {
     timer_->reset(cmd);
     timer_->begin(cmd, "resolve");
-    resolve_->dispatch(cmd, {&accum_buf_, &out_buf_, &ldr_buf_}, &push, (pixels + 63) / 64);
+    resolve_.dispatch(cmd, frame_bindings(), &push, resolve_.groups_1d(pixels));
     timer_->end(cmd);
     if (!svgf_surface_ && !svgf_volume_) return;
     gpu::compute_barrier(cmd);
     denoise::SvgfInputs in;
-    in.colour = &out_buf_;
-    in.colour_stride = glsl::OUT_STRIDE;
-    in.gbuffer = &gbuffer_buf_;
-    in.prev_gbuffer = &prev_gbuffer_buf_;
-    in.motion = &gbuffer_buf_;
-    in.motion_stride = glsl::G_STRIDE;
-    in.motion_offset = glsl::G_MOTION;
+    in.gbuffer = &gbuffer_;
+    in.prev_gbuffer = &prev_gbuffer_;
+    in.motion = &gbuffer_[layer_of(glsl::G_MOTION)];
+    in.motion_stride = 4;
+    in.motion_offset = glsl::G_MOTION % 4;
+    in.colour_stride = 4;
     if (svgf_surface_) {
-      in.colour_offset = glsl::OUT_DEMOD;
+      in.colour = &out_[layer_of(glsl::OUT_DEMOD)];
+      in.colour_offset = glsl::OUT_DEMOD % 4;
       svgf_surface_->run(cmd, timer_.get(), in);
     }
     if (svgf_volume_) {
-      in.colour_offset = glsl::OUT_VOL;
+      in.colour = &vol;
+      in.colour_offset = glsl::OUT_VOL % 4;
       if (scene_.denoise.volume_motion == "virtual_points") {
         in.motion = &volume_motion_->output();
         in.motion_stride = 4;
@@ -393,10 +320,11 @@ Image Renderer::resolve() {
       svgf_volume_->run(cmd, timer_.get(), in);
     }
     timer_->begin(cmd, "tonemap");
-    tonemap_->dispatch(cmd,
-                       {svgf_surface_ ? &svgf_surface_->output() : &out_buf_,
-                        svgf_volume_ ? &svgf_volume_->output() : &out_buf_, &ldr_buf_},
-                       &tp, (pixels + 63) / 64);
+    gpu::Bindings b;
+    b.set("surface", svgf_surface_ ? svgf_surface_->output() : surf);
+    b.set("volume", svgf_volume_ ? svgf_volume_->output() : vol);
+    b.set("ldr", ldr_);
+    tonemap_.dispatch(cmd, b, &tp, tonemap_.groups_1d(pixels));
     timer_->end(cmd);
   });
   record_times();
@@ -405,34 +333,45 @@ Image Renderer::resolve() {
   img.width = r.width;
   img.height = r.height;
   img.samples = samples_;
-  img.data = out_buf_.download_vector<float>();
-  img.ldr = ldr_buf_.download_vector<uint32_t>();
-  img.gbuffer = gbuffer_buf_.download_vector<float>();
+  img.data = out_.download();
+  img.ldr = ldr_.download_vector<uint32_t>();
+  img.gbuffer = gbuffer_.download();
   if (svgf_surface_) img.surface_denoised = svgf_surface_->download();
   if (svgf_volume_) img.volume_denoised = svgf_volume_->download();
   if (volume_motion_) img.volume_motion = volume_motion_->download();
   return img;
 }
 
-std::vector<glm::vec4> Renderer::guide_states() const {
-  return guide_buf_.valid() ? guide_buf_.download_vector<glm::vec4>() : std::vector<glm::vec4>{};
-}
-
 std::vector<float> Renderer::accum() const {
-  return accum_buf_.download_vector<float>();
+  return accum_.download();
 }
 
 std::vector<std::string> Renderer::notes() const {
-  std::vector<std::string> n = media_.notes;
-  n.insert(n.end(), geometry_.notes.begin(), geometry_.notes.end());
+  std::vector<std::string> n = media_.host().notes;
+  const auto& g = surfaces_.geometry().notes;
+  n.insert(n.end(), g.begin(), g.end());
   return n;
 }
 
 nlohmann::json Renderer::stats() const {
   nlohmann::json j;
   j["device"] = ctx_.describe();
-  j["features"] = features_.describe();
-  j["shader_variant"] = features_.mask();
+  // The trace kernel's features, lower case: "haze+sun", "empty" for none.
+  std::string features;
+  for (const auto& [name, value] : trace_.decl().defines()) {
+    std::string f = name.rfind("HAZE_", 0) == 0 ? name.substr(5) : name;
+    std::transform(f.begin(), f.end(), f.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+    features += (features.empty() ? "" : "+") + f;
+  }
+  j["features"] = features.empty() ? "empty" : features;
+  nlohmann::json kernels = nlohmann::json::array();
+  for (const gpu::Kernel* k : {&trace_, &resolve_, &gbuffer_pass_, &tonemap_})
+    if (k->valid()) kernels.push_back(k->decl().describe());
+  j["kernels"] = kernels;
+  const gpu::ShaderCacheStats now = ctx_.shaders().stats();
+  j["shaders"] = {{"compiled", now.compiled - shaders_at_start_.compiled},
+                  {"cache_hits", now.cache_hits - shaders_at_start_.cache_hits},
+                  {"compile_ms", now.compile_ms - shaders_at_start_.compile_ms}};
   j["samples"] = samples_;
   j["pipeline_creation_ms"] = pipeline_ms_;
   nlohmann::json p = nlohmann::json::object();
@@ -440,7 +379,8 @@ nlohmann::json Renderer::stats() const {
   j["passes"] = p;
   j["memory"] = ctx_.ledger().to_json();
   j["notes"] = notes();
-  j["majorant_resolution"] = {media_.majorant.res.x, media_.majorant.res.y, media_.majorant.res.z};
+  const auto& maj = media_.host().majorant;
+  j["majorant_resolution"] = {maj.res.x, maj.res.y, maj.res.z};
   return j;
 }
 

@@ -1,5 +1,7 @@
-// The frame: builds the passes and buffers a scene needs (and no others), runs them per sample,
-// resolves the accumulated sums into images, and reports timings and memory.
+// The frame: composes the passes a scene needs (and no others) from its parts (media, surfaces, lights,
+// guiding, the denoisers), runs them per sample, resolves the accumulated sums into images, and reports
+// timings and memory. The renderer owns only the frame's own data: the scene block, the accumulation,
+// resolved and G-buffer layers and the preview; every part owns, reuses and binds its own buffers.
 #pragma once
 
 #include <functional>
@@ -8,20 +10,28 @@
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "denoise/svgf.hpp"
 #include "gpu/gpu.hpp"
+#include "gpu/kernel.hpp"
+#include "gpu/pixel_layers.hpp"
+#include "guiding/guide.hpp"
 #include "guiding/volume_motion.hpp"
+#include "lights/lights.hpp"
 #include "scene/scene.hpp"
-#include "surfaces/scene_geometry.hpp"
-#include "volume/device_scene.hpp"
-#include "volume/features.hpp"
+#include "surfaces/device_surfaces.hpp"
+#include "volume/media.hpp"
 
 namespace haze::render {
 
-// Folder of the compiled SPIR-V: $HAZE_SPV_DIR, else the build tree's.
-std::string spv_dir();
+// The frame's per-pixel layers, in layer order (host offsets ACC_*, OUT_*, G_* of the GLSL headers are
+// 4 * layer + component).
+extern const std::vector<std::string> kAccumulationLayers;  // acc_l ... acc_vp
+extern const std::vector<std::string> kResolvedLayers;      // out_l ... out_demod_m2
+extern const std::vector<std::string> kGBufferLayers;       // g_depth, g_normal, g_albedo
+extern const std::vector<std::string> kPrevGBufferLayers;   // prev_g_depth, prev_g_normal, prev_g_albedo
 
 // Resolved image: OUT_STRIDE floats per pixel (layout in shaders/volume/gpu_scene.glsl) plus the preview.
 struct Image {
@@ -41,6 +51,12 @@ struct Image {
   }
 };
 
+// The camera as the shaders use it (shaders/common/camera.glsl): right and up scaled by the field of view.
+struct CameraBasis {
+  glm::vec4 position, right, up, forward;
+};
+CameraBasis camera_basis(const scene::Camera& c, const scene::RenderSettings& r);
+
 // Push constants of shaders/denoise/tonemap.comp: exposure 2^render.exposure and the tone curve (0 aces,
 // 1 reinhard, 2 clamp) of render.tonemap. A signal given as floats is `stride` floats per pixel with its rgb
 // at `offset`; its specialization constant (SURFACE_HALF, VOLUME_HALF) says whether it is an SVGF output
@@ -52,6 +68,8 @@ struct TonemapPush {
 };
 TonemapPush tonemap_push(const scene::RenderSettings& r, uint32_t pixels, glm::uvec2 surface_layout = {0, 0},
                          glm::uvec2 volume_layout = {0, 0});
+// The tonemap kernel: the surface and the volume signal as SVGF outputs (half) or floats.
+gpu::KernelDecl tonemap_decl(uint64_t pixels, bool surface_half, bool volume_half);
 
 // Median of a sample (the middle pair's mean for even sizes); 0 for an empty one.
 double median(std::vector<double> v);
@@ -69,10 +87,10 @@ class Renderer {
   ~Renderer();
 
   // Switches to another (static) scene, e.g. the next animation frame, and clears the accumulation.
-  // Pipelines, buffers of unchanged size and grids of unchanged media are kept.
+  // Kernels, buffers of unchanged size and grids of unchanged media are kept.
   void set_scene(const scene::Scene& s, uint32_t frame, const scene::Scene* prev = nullptr);
   // Starts an independent render of `s` (a sweep's next run): as set_scene, but every history (denoisers,
-  // guide, virtual points), the pass statistics and the pipeline time start afresh. Pipelines are kept.
+  // guide, virtual points), the pass statistics and the kernel setup time start afresh. Kernels are kept.
   void restart(const scene::Scene& s, uint32_t frame, const scene::Scene* prev = nullptr);
 
   // One dispatch per sample; progress(done, total) after each.
@@ -84,62 +102,57 @@ class Renderer {
   // Raw per-pixel sums (ACC_STRIDE floats per pixel) for tests.
   std::vector<float> accum() const;
 
-  const volume::Features& features() const { return features_; }
-  const volume::DeviceMedia& media() const { return media_; }
+  // The trace kernel's permutation, and whether it has feature HAZE_<name> ("GUIDING", "SURFACES", ...).
+  const gpu::KernelDecl& trace_decl() const { return trace_.decl(); }
+  bool has_feature(std::string_view name) const;
+  const volume::DeviceMedia& media() const { return media_.host(); }
+  const volume::Media& device_media() const { return media_; }
+  const gpu::Buffer& scene_buffer() const { return scene_buf_; }
   // What loading the scene changed or dropped (clamped g, dropped triangles, ...), one line each.
   std::vector<std::string> notes() const;
-  const surfaces::SceneGeometry& geometry() const { return geometry_; }
+  const surfaces::SceneGeometry& geometry() const { return surfaces_.geometry(); }
   // The distance-guiding states (K vec4 {W, N, m1, m2} per grid vertex, shaders/guiding/guide.glsl); empty
   // without guiding.
-  std::vector<glm::vec4> guide_states() const;
+  std::vector<glm::vec4> guide_states() const { return guide_.download(); }
   const std::map<std::string, PassStats>& pass_stats() const { return passes_; }
-  double pipeline_ms() const { return pipeline_ms_; }
+  double pipeline_ms() const { return pipeline_ms_; }  // compiling and creating this run's kernels
   nlohmann::json stats() const;
 
  private:
   gpu::Context& ctx_;
   scene::Scene scene_;
-  volume::Features features_;
-  volume::DeviceMedia media_;
-  surfaces::SceneGeometry geometry_;
-  size_t num_lights_ = 0;
-  gpu::Buffer scene_buf_, accum_buf_, lights_buf_, nanovdb_buf_, media_buf_, majorant_buf_;
-  gpu::Buffer out_buf_, ldr_buf_;
-  gpu::Buffer bvh_nodes_buf_, bvh_tris_buf_, instances_buf_;  // surfaces only
-  gpu::Buffer triangle_uvs_buf_, texels_buf_;                 // albedo textures only
-  gpu::Buffer gbuffer_buf_, prev_gbuffer_buf_;
-  gpu::Buffer guide_buf_, guide_prev_buf_;  // guiding only
-  gpu::Buffer media_motion_buf_;            // moving media only (guiding::glsl::MediumMotion each)
-  uint32_t moving_media_ = 0;
-  bool has_frame_ = false;  // a frame was resolved since the buffers were (re)made: history exists
-  std::map<std::string, std::unique_ptr<gpu::ComputePipeline>> pipelines_;  // by SPIR-V path
-  const gpu::ComputePipeline* trace_ = nullptr;
-  const gpu::ComputePipeline* resolve_ = nullptr;
-  const gpu::ComputePipeline* gbuffer_ = nullptr;
-  const gpu::ComputePipeline* tonemap_ = nullptr;
-  const gpu::ComputePipeline* guide_reproject_ = nullptr;
+  // The parts.
+  volume::Media media_;
+  surfaces::DeviceSurfaces surfaces_;
+  lights::Lights lights_;
+  guiding::Guide guide_;
   std::unique_ptr<denoise::Svgf> svgf_surface_;           // scenes with surfaces, denoise.surface.enabled
   std::unique_ptr<denoise::Svgf> svgf_volume_;            // scenes with media, denoise.volume.enabled
   std::unique_ptr<guiding::VolumeMotion> volume_motion_;  // for the volume instance and guiding's reuse
+  // The frame's own data.
+  gpu::Buffer scene_buf_, ldr_;
+  gpu::PixelLayers accum_, out_, gbuffer_, prev_gbuffer_;
+  gpu::Kernel trace_, resolve_, gbuffer_pass_, tonemap_;
+  bool has_frame_ = false;  // a frame was resolved since the layers were (re)made: history exists
   std::unique_ptr<gpu::Timer> timer_;
   std::map<std::string, PassStats> passes_;
   double pipeline_ms_ = 0;
+  gpu::ShaderCacheStats shaders_at_start_;  // the context's compiler counters when this run began
   int samples_ = 0;
 
+  // set_scene, or with `fresh` the start of an independent run (the guide's states are emptied).
+  void load(const scene::Scene& s, uint32_t frame, const scene::Scene* prev, bool fresh);
   void record_times();
-  // The BVH, instance and texture buffers in the order trace.comp and gbuffer.comp bind them.
-  void append_surface_buffers(std::vector<const gpu::Buffer*>& b) const;
-  const gpu::ComputePipeline* pipeline(const std::string& spv, uint32_t num_buffers, uint32_t push_bytes,
-                                       const std::vector<uint32_t>& spec = {});
+  // A kernel from the context's cache; adds its setup time to pipeline_ms_.
+  gpu::Kernel kernel(gpu::KernelDecl decl);
   // Makes `svgf` exist with `params` at the scene's size when `wanted` (keeping its history when the size is
   // unchanged), else drops it.
   void keep_svgf(std::unique_ptr<denoise::Svgf>& svgf, const char* name, bool wanted,
                  const denoise::SvgfParams& params, bool remodulate);
-  // Where this frame starts: the previous frame's virtual points projected forward, the guide carried over.
+  // Where this frame starts: the G-buffer, the previous frame's virtual points projected forward, the guide
+  // carried over.
   void start_frame(VkCommandBuffer cmd);
-  // Reallocates `b` only when its size changes.
-  void ensure(gpu::Buffer& b, const char* name, const char* category, uint64_t bytes,
-              const std::string& format);
+  gpu::Bindings frame_bindings() const;
 };
 
 }  // namespace haze::render

@@ -246,4 +246,21 @@ DeviceBvh upload(gpu::Context& ctx, const Bvh& bvh) {
   return d;
 }
 
+void DeviceBvh::declare(gpu::KernelDecl& k) const {
+  k.buffer("bvh_nodes", nodes.size(), sizeof(glsl::GpuBvhNode));
+  k.buffer("bvh_triangles", triangles.size(), sizeof(glsl::GpuTriangle));
+}
+
+void DeviceBvh::bind(gpu::Bindings& b) const {
+  b.set("bvh_nodes", nodes).set("bvh_triangles", triangles);
+}
+
+gpu::KernelDecl trace_rays_decl(const DeviceBvh& bvh, uint64_t rays, bool any_hit) {
+  gpu::KernelDecl d("surfaces/trace_rays.comp");
+  bvh.declare(d);
+  d.buffer("rays", rays * sizeof(glsl::GpuRay), sizeof(glsl::GpuRay));
+  d.buffer("hits", rays * sizeof(glsl::GpuRayHit), sizeof(glsl::GpuRayHit));
+  return std::move(d.push(4).specialize({any_hit ? 1u : 0u}));
+}
+
 }  // namespace haze::surfaces

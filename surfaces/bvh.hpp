@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "gpu/buffer.hpp"
+#include "gpu/kernel.hpp"
 #include "surfaces/bvh_layout.hpp"
 #include "surfaces/mesh.hpp"
 
@@ -63,10 +64,16 @@ inline uint32_t input_index(const glsl::GpuTriangle& t) {
 }
 
 // The BVH's two storage buffers (memory ledger category "scene data"), bound as the shaders' bvh_nodes
-// and bvh_triangles.
-struct DeviceBvh {
+// and bvh_triangles (shaders/surfaces/bvh.glsl).
+struct DeviceBvh : gpu::DeviceData {
   gpu::Buffer nodes, triangles;
+  void declare(gpu::KernelDecl& k) const override;
+  void bind(gpu::Bindings& b) const override;
 };
 DeviceBvh upload(gpu::Context& ctx, const Bvh& bvh);
+
+// The test and benchmark kernel shaders/surfaces/trace_rays.comp: `rays` GpuRay in the binding "rays", one
+// GpuRayHit each out in "hits"; the occlusion query when `any_hit`. Push constant: the ray count.
+gpu::KernelDecl trace_rays_decl(const DeviceBvh& bvh, uint64_t rays, bool any_hit);
 
 }  // namespace haze::surfaces

@@ -10,7 +10,7 @@
 #include <glm/gtc/packing.hpp>
 #include <memory>
 
-#include "volume/glsl.hpp"
+#include "shaders/glsl.hpp"
 
 namespace haze::surfaces {
 

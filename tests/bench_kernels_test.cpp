@@ -16,7 +16,7 @@ namespace haze::test {
 namespace {
 
 bench::VolumeReprKernels& kernels() {
-  static bench::VolumeReprKernels k(context(), render::spv_dir());
+  static bench::VolumeReprKernels k(context());
   return k;
 }
 

@@ -10,8 +10,8 @@
 
 #include "denoise/svgf.hpp"
 #include "render/renderer.hpp"
+#include "shaders/glsl.hpp"
 #include "test_util.hpp"
-#include "volume/glsl.hpp"
 
 namespace haze::test {
 namespace {
@@ -60,27 +60,28 @@ class Rig {
       : W_(W),
         H_(H),
         colour_(context(), "test colour", "test", size_t(W) * H * 12, "3 x f32"),
-        g_(context(), "test g-buffer", "test", size_t(W) * H * glsl::G_STRIDE * 4, "G"),
-        prev_(context(), "test previous g-buffer", "test", size_t(W) * H * glsl::G_STRIDE * 4, "G"),
-        svgf_(context(), "surface", p, W, H, true, render::spv_dir()) {}
+        g_(context(), "test g-buffer", "test", size_t(W) * H, render::kGBufferLayers),
+        prev_(context(), "test previous g-buffer", "test", size_t(W) * H, render::kPrevGBufferLayers),
+        svgf_(context(), "surface", p, W, H, true) {}
   SvgfResult run(const Frame& f, const std::vector<glm::vec3>& noisy) {
     colour_.upload(noisy);
     std::vector<float> g = f.gbuffer();
     if (first_) prev_.upload(g);
     first_ = false;
     g_.upload(g);
-    denoise::SvgfInputs in{&colour_, 3, 0, &g_, &prev_, &g_, glsl::G_STRIDE, glsl::G_MOTION};
+    denoise::SvgfInputs in{&colour_, 3, 0, &g_, &prev_, &g_[glsl::G_MOTION / 4], 4, glsl::G_MOTION % 4};
     context().submit_and_wait([&](VkCommandBuffer cmd) {
       svgf_.run(cmd, nullptr, in);
       gpu::compute_barrier(cmd);
-      gpu::copy_buffer(cmd, g_, prev_);
+      g_.copy_to(cmd, prev_);
     });
     return svgf_.download();
   }
 
  private:
   int W_, H_;
-  gpu::Buffer colour_, g_, prev_;
+  gpu::Buffer colour_;
+  gpu::PixelLayers g_, prev_;
   denoise::Svgf svgf_;
   bool first_ = true;
 };
@@ -298,7 +299,7 @@ TEST(Svgf, MotionLeavingTheScreenReusesTheBorder) {
 
 TEST(Svgf, MemoryAt1080pIsWithinBudget) {
   auto before = context().ledger().per_category();
-  denoise::Svgf svgf(context(), "surface", SvgfParams{}, 1920, 1080, true, render::spv_dir());
+  denoise::Svgf svgf(context(), "surface", SvgfParams{}, 1920, 1080, true);
   auto cat = context().ledger().per_category();
   uint64_t temps = cat["svgf.surface per-frame temporaries"] - before["svgf.surface per-frame temporaries"];
   uint64_t prev = cat["svgf.surface previous-frame data"] - before["svgf.surface previous-frame data"];

@@ -6,9 +6,9 @@
 #include <cmath>
 #include <iostream>
 
+#include "shaders/glsl.hpp"
 #include "test_util.hpp"
 #include "vdb/vdb.h"
-#include "volume/glsl.hpp"
 
 namespace haze::test {
 namespace {
@@ -21,10 +21,6 @@ using glsl::ACC_T2;
 using nlohmann::json;
 
 // Camera one unit below a slab y in [0, 1], looking up; rays cross only the slab's top and bottom faces.
-bool guiding_on(const scene::Scene& s) {
-  return volume::features_of(s).guiding;
-}
-
 json slab_camera(int size = 12) {
   return {{"camera", {{"position", {0, -1, 0}}, {"target", {0, 1, 0}}, {"up", {0, 0, 1}}, {"fov_y", 40}}},
           {"render", {{"width", size}, {"height", size}, {"pixel_jitter", false}, {"max_depth", 1}}}};
@@ -164,8 +160,8 @@ void check_sunlit_slab(bool hetero, double p_equiangular, double guide_p = -1) {
   j["render"]["equiangular_probability"] = p_equiangular;
   j["render"]["volume_samples"] = 2;
   scene::Scene s = make_scene(guided(j, guide_p));
-  EXPECT_EQ(guiding_on(s), guide_p >= 0);
   render::Renderer r(context(), s);
+  EXPECT_EQ(r.has_feature("GUIDING"), guide_p >= 0);
   r.add_samples(256);
   std::function<double(double)> rho, F;
   double total;

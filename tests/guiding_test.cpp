@@ -7,8 +7,8 @@
 #include <cmath>
 #include <iostream>
 
+#include "shaders/glsl.hpp"
 #include "test_util.hpp"
-#include "volume/glsl.hpp"
 
 namespace haze::test {
 namespace {
@@ -50,8 +50,8 @@ double vertex_mean(const std::vector<glm::vec4>& st, glm::uvec2 grid, uint32_t K
 TEST(Guiding, StatesLearnTheShaftPosition) {
   scene::Scene s = make_scene(shaft_scene(true));
   render::Renderer r(context(), s);
-  ASSERT_TRUE(r.features().guiding);
-  glm::uvec2 grid = volume::guide_grid_size(s);
+  ASSERT_TRUE(r.has_feature("GUIDING"));
+  glm::uvec2 grid = guiding::grid_size(s.guiding, uint32_t(s.render.width), uint32_t(s.render.height));
   EXPECT_EQ(grid, glm::uvec2(32 / 8 + 2, 24 / 8 + 2));
   std::vector<double> error;
   for (int frame = 0; frame < 4; ++frame) {
@@ -167,7 +167,7 @@ TEST(VolumeDenoiser, RunsAndCompositesWithItsOwnLedgerCategories) {
   render::Image qi = q.resolve();
   EXPECT_FALSE(qi.volume_denoised.has_value());
   EXPECT_TRUE(qi.volume_motion.empty());
-  EXPECT_FALSE(q.features().guiding);
+  EXPECT_FALSE(q.has_feature("GUIDING"));
   EXPECT_TRUE(q.guide_states().empty());
   EXPECT_EQ(context().validation_messages(), 0u);
 }

@@ -6,7 +6,7 @@
 #include <functional>
 #include <random>
 
-#include "volume/glsl.hpp"
+#include "shaders/glsl.hpp"
 
 namespace {
 

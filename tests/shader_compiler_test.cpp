@@ -16,6 +16,8 @@
 #include <fstream>
 #include <functional>
 #include <optional>
+#include <regex>
+#include <set>
 #include <sstream>
 #include <thread>
 
@@ -88,7 +90,32 @@ ShaderSources small_tree() {
   return s;
 }
 
+// Every binding name the embedded shaders use (BINDING_<name>, and the names given to PIXEL_LAYER*), each
+// defined to a distinct number: what a kernel declaration would add (gpu/kernel.hpp), for all of them.
+const Defines& all_bindings() {
+  static const Defines d = [] {
+    std::set<std::string> names;
+    const std::regex binding(R"(BINDING_(\w+))"), layer(R"(PIXEL_LAYER(?:_IN|_OUT)?\((\w+)\))");
+    const ShaderSources& tree = ShaderSources::embedded();
+    for (const auto& path : tree.paths()) {
+      const std::string& text = *tree.find(path);
+      for (const auto* re : {&binding, &layer})
+        for (auto it = std::sregex_iterator(text.begin(), text.end(), *re); it != std::sregex_iterator();
+             ++it)
+          names.insert((*it)[1]);
+    }
+    names.erase("name");  // the macro parameter of PIXEL_LAYER itself
+    Defines out;
+    for (const auto& n : names) out.emplace_back("BINDING_" + n, std::to_string(out.size()));
+    return out;
+  }();
+  return d;
+}
+
+// A permutation; sources of the embedded tree also get every binding define.
 ShaderPermutation perm(std::string source, Defines defines = {}, std::string label = {}) {
+  if (ShaderSources::embedded().find(source))
+    defines.insert(defines.end(), all_bindings().begin(), all_bindings().end());
   return ShaderPermutation{std::move(source), std::move(defines), std::move(label)};
 }
 

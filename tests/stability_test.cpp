@@ -7,8 +7,8 @@
 
 #include <cmath>
 
+#include "shaders/glsl.hpp"
 #include "test_util.hpp"
-#include "volume/glsl.hpp"
 
 namespace haze::test {
 namespace {

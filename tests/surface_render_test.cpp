@@ -9,11 +9,10 @@
 #include <glm/gtc/matrix_transform.hpp>
 #include <iostream>
 
+#include "shaders/glsl.hpp"
 #include "surfaces/texture.hpp"
 #include "temp_dir.hpp"
 #include "test_util.hpp"
-#include "volume/device_scene.hpp"
-#include "volume/glsl.hpp"
 
 namespace haze::test {
 namespace {
@@ -40,8 +39,8 @@ TEST(SurfaceRender, EmittingEnclosureIsAFurnace) {
             {"render", {{"width", 8}, {"height", 8}, {"max_depth", 256}}}};
   scene::Scene s = make_scene(j);
   render::Renderer r(context(), s);
-  EXPECT_TRUE(r.features().surfaces);
-  EXPECT_TRUE(r.features().area);
+  EXPECT_TRUE(r.has_feature("SURFACES"));
+  EXPECT_TRUE(r.has_feature("AREA"));
   r.add_samples(512);
   Estimate e = estimate(r, glsl::ACC_L, glsl::ACC_L2);
   double z = z_score(e, std::vector<double>(e.mean.size(), Le / (1 - a)));
@@ -75,7 +74,7 @@ TEST(SurfaceRender, MotionVectorsReprojectToTheSamePointOnMovingGeometry) {
   glm::dmat4 o2w_prev = glm::dmat4(prev.surfaces[0].transform.matrix());
   glm::dmat4 o2w_cur = glm::dmat4(cur.surfaces[0].transform.matrix());
   auto dirs = camera_directions(cur);
-  auto pb = volume::camera_basis(prev.camera, prev.render);
+  auto pb = render::camera_basis(prev.camera, prev.render);
   glm::dvec2 size(cur.render.width, cur.render.height);
   double worst = 0;
   int checked = 0;
@@ -173,7 +172,7 @@ TEST(SurfaceRender, AlbedoTextureIsFilteredAtTheHitUv) {
             {"render", {{"width", 48}, {"height", 24}, {"pixel_jitter", false}}}};
   scene::Scene s = make_scene(j);
   render::Renderer r(context(), s);
-  EXPECT_TRUE(r.features().texture);
+  EXPECT_TRUE(r.has_feature("TEXTURE"));
   r.add_samples(1);
   render::Image img = r.resolve();
   surfaces::Texture tex = surfaces::load_texture(png);

@@ -25,10 +25,6 @@
 #include "surfaces/mesh.hpp"
 #include "surfaces/texture.hpp"
 
-#ifndef HAZE_DEFAULT_SPV_DIR
-#error "HAZE_DEFAULT_SPV_DIR must be defined by the build"
-#endif
-
 namespace haze::surfaces {
 namespace {
 
@@ -40,11 +36,10 @@ constexpr float kInf = std::numeric_limits<float>::infinity();
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
 // ---------------------------------------------------------------------------------------------------------
-// Process-wide GPU state: one Context and the two trace pipelines (closest hit, occlusion).
+// Process-wide GPU state: one Context (which keeps the trace kernels' pipelines once created).
 
 struct Shared {
   std::unique_ptr<gpu::Context> ctx;
-  std::unique_ptr<gpu::ComputePipeline> closest, occluded;
 };
 Shared& shared() {
   static Shared s;
@@ -58,8 +53,6 @@ std::filesystem::path temp_root() {
 class Environment : public ::testing::Environment {
  public:
   void TearDown() override {  // before main returns, while the Vulkan loader is surely alive
-    shared().closest.reset();
-    shared().occluded.reset();
     shared().ctx.reset();
     std::error_code ec;
     std::filesystem::remove_all(temp_root(), ec);
@@ -67,21 +60,11 @@ class Environment : public ::testing::Environment {
 };
 [[maybe_unused]] auto* const environment = ::testing::AddGlobalTestEnvironment(new Environment);
 
-std::string spv_dir() {
-  if (const char* e = std::getenv("HAZE_SPV_DIR"); e && *e) return e;
-  return HAZE_DEFAULT_SPV_DIR;
-}
-
 gpu::Context& ctx() {
   if (!shared().ctx) {
     gpu::ContextOptions o;
     o.validation = true;
     shared().ctx = std::make_unique<gpu::Context>(o);
-    const std::string spv = gpu::variant_spv(spv_dir(), "surfaces/trace_rays.comp", 0);
-    shared().closest =
-        std::make_unique<gpu::ComputePipeline>(*shared().ctx, spv, 4, 4, std::vector<uint32_t>{0});
-    shared().occluded =
-        std::make_unique<gpu::ComputePipeline>(*shared().ctx, spv, 4, 4, std::vector<uint32_t>{1});
   }
   return *shared().ctx;
 }
@@ -100,13 +83,16 @@ std::vector<GpuRayHit> trace(const Bvh& bvh, const std::vector<GpuRay>& rays, bo
   gpu::Buffer ray_buf(c, "test rays", "test", rays.size() * sizeof(GpuRay), "GpuRay");
   ray_buf.upload(rays);
   gpu::Buffer hit_buf(c, "test hits", "test", rays.size() * sizeof(GpuRayHit), "GpuRayHit");
-  const gpu::ComputePipeline& p = any_hit ? *shared().occluded : *shared().closest;
+  const gpu::Kernel k(c, trace_rays_decl(d, rays.size(), any_hit));
+  gpu::Bindings b;
+  d.bind(b);
+  b.set("rays", ray_buf).set("hits", hit_buf);
   const uint32_t count = uint32_t(rays.size());
   gpu::Timer timer(c, 4);
   c.submit_and_wait([&](VkCommandBuffer cmd) {
     timer.reset(cmd);
     timer.begin(cmd, "trace");
-    p.dispatch(cmd, {&d.nodes, &d.triangles, &ray_buf, &hit_buf}, &count, gpu::div_up(count, 64));
+    k.dispatch(cmd, b, &count, k.groups_1d(count));
     timer.end(cmd);
   });
   if (gpu_ms) *gpu_ms = timer.read_ms().at(0).second;

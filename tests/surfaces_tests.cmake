@@ -2,7 +2,5 @@
 # shaders' BVH traversal on lavapipe against Embree. One process: the Context and pipelines once.
 add_executable(surfaces_test ${CMAKE_CURRENT_LIST_DIR}/surfaces_test.cpp)
 target_link_libraries(surfaces_test PRIVATE haze_surfaces haze_gpu GTest::gtest_main fmt::fmt stb)
-target_compile_definitions(surfaces_test PRIVATE HAZE_DEFAULT_SPV_DIR="${HAZE_SPV_DIR}")
-add_dependencies(surfaces_test haze_shaders)
 add_test(NAME surfaces_test COMMAND surfaces_test)
 set_tests_properties(surfaces_test PROPERTIES TIMEOUT 300 ENVIRONMENT "${HAZE_TEST_ENV}")

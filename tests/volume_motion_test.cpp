@@ -15,13 +15,13 @@
 #include <optional>
 
 #include "render/renderer.hpp"
+#include "shaders/glsl.hpp"
 #include "test_util.hpp"
-#include "volume/glsl.hpp"
 
 namespace haze::test {
 namespace {
 
-using guiding::glsl::MediumMotion;
+using glsl::MediumMotion;
 
 constexpr double kMotionTol = 1e-3;  // pixels
 constexpr double kDeltaTol = 1e-4;   // scene units (distances ~5)
@@ -167,14 +167,15 @@ std::vector<glm::vec4> run(const Case& s, guiding::VolumeMotion* vm = nullptr,
   gpu::Buffer prev_depth(ctx, "test previous depth", "test", depth.size() * 4, "3 x f32");
   prev_depth.upload(depth);
 
-  std::vector<float> g(n * glsl::G_STRIDE, 0.f);
+  // The G-buffer layer g_normal: (octahedral normal, motion).
+  std::vector<glm::vec4> g(n, glm::vec4(0.f));
   for (int y = 0; y < s.H; ++y)
     for (int x = 0; x < s.W; ++x) {
       glm::vec2 m = surface_motion(x, y);
-      g[(size_t(y) * s.W + x) * glsl::G_STRIDE + glsl::G_MOTION] = m.x;
-      g[(size_t(y) * s.W + x) * glsl::G_STRIDE + glsl::G_MOTION + 1] = m.y;
+      g[size_t(y) * s.W + x] = glm::vec4(0.f, 0.f, m.x, m.y);
     }
-  gpu::Buffer gbuffer(ctx, "test g-buffer", "test", g.size() * 4, "G");
+  static_assert(glsl::G_MOTION % 4 == 2);
+  gpu::Buffer gbuffer(ctx, "test g-buffer g_normal", "test", g.size() * 16, "4 x f32");
   gbuffer.upload(g);
 
   std::vector<MediumMotion> media;
@@ -191,7 +192,7 @@ std::vector<glm::vec4> run(const Case& s, guiding::VolumeMotion* vm = nullptr,
   }
 
   std::unique_ptr<guiding::VolumeMotion> own;
-  if (!vm) vm = (own = std::make_unique<guiding::VolumeMotion>(ctx, s.W, s.H, render::spv_dir())).get();
+  if (!vm) vm = (own = std::make_unique<guiding::VolumeMotion>(ctx, s.W, s.H)).get();
   guiding::VolumeMotionInputs in{
       &scene, &prev_depth, 3, 1, &gbuffer, media.empty() ? nullptr : &media_buf, uint32_t(s.media.size())};
   ctx.submit_and_wait([&](VkCommandBuffer cmd) {
@@ -237,7 +238,7 @@ TEST(VolumeMotion, PlanePointsMatchTheAnalyticMotion) {
   ASSERT_FALSE(e.ambiguous);
 
   gpu::Timer timer(context());
-  guiding::VolumeMotion vm(context(), s.W, s.H, render::spv_dir());
+  guiding::VolumeMotion vm(context(), s.W, s.H);
   std::vector<glm::vec4> out = run(s, &vm, false, &timer);
   EXPECT_EQ(compare(s, out, e), 0);
   // Independently of the reference: the analytic motion (disparity, 0) and distance change.
@@ -315,7 +316,7 @@ TEST(VolumeMotion, NearestPointWinsDeterministically) {
       ASSERT_EQ(e.source[size_t(y) * s.W + target], y * s.W + nearest);
     }
 
-    guiding::VolumeMotion vm(context(), s.W, s.H, render::spv_dir());
+    guiding::VolumeMotion vm(context(), s.W, s.H);
     std::vector<glm::vec4> out = run(s, &vm);
     EXPECT_EQ(compare(s, out, e), 0);
     for (int y : {5, 12, 17}) {
@@ -350,7 +351,7 @@ TEST(VolumeMotion, MovingMediaCarryTheirPoints) {
              box(28, 35, 2, 8, glm::dvec3(0, 0, -10))};
   Expected e = reference(s);
   ASSERT_FALSE(e.ambiguous);
-  guiding::VolumeMotion vm(context(), s.W, s.H, render::spv_dir());
+  guiding::VolumeMotion vm(context(), s.W, s.H);
   std::vector<glm::vec4> out = run(s, &vm);
   EXPECT_EQ(compare(s, out, e), 0);
 

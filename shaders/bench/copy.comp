@@ -1,10 +1,10 @@
 #version 460
 // The yardstick for pass timings: a plain copy of the same number of floats a pass reads.
 layout(local_size_x = 64) in;
-layout(std430, binding = 0) readonly buffer Src {
+layout(std430, binding = BINDING_src) readonly buffer Src {
   vec4 src[];
 };
-layout(std430, binding = 1) writeonly buffer Dst {
+layout(std430, binding = BINDING_dst) writeonly buffer Dst {
   vec4 dst[];
 };
 layout(push_constant) uniform Push {

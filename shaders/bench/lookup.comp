@@ -10,23 +10,9 @@ layout(local_size_x = 64) in;
 #include "common/rng.glsl"
 #include "common/sampling.glsl"
 #include "volume/gpu_scene.glsl"
-layout(std430, binding = 0) readonly buffer SceneBuffer {
-  GpuScene scene;
-};
-layout(std430, binding = 1) readonly buffer NanoBuffer {
-  uint pnanovdb_buf_data[];
-};
-layout(std430, binding = 2) readonly buffer MediaBuffer {
-  GpuMedium media[];
-};
-layout(std430, binding = 3) readonly buffer MajorantBuffer {
-  float majorant[];
-};
-layout(std430, binding = 4) writeonly buffer OutBuffer {
+layout(std430, binding = BINDING_result) writeonly buffer OutBuffer {
   float result[];
 };
-#define PNANOVDB_GLSL
-#include "nanovdb/PNanoVDB.h"
 layout(push_constant) uniform Push {
   uint count;
   uint lookups;

@@ -19,22 +19,10 @@ layout(constant_id = 0) const uint MARCH = 0u;
 #include "volume/gpu_scene.glsl"
 // medium.glsl reads scene, media[] and majorant[] in functions this kernel never calls: declared, not bound
 // to anything the kernel uses (the host passes a small placeholder).
-layout(std430, binding = 0) readonly buffer SceneBuffer {
-  GpuScene scene;
-};
-layout(std430, binding = 1) readonly buffer NanoBuffer {
-  uint pnanovdb_buf_data[];
-};
-layout(std430, binding = 2) readonly buffer MediaBuffer {
-  GpuMedium media[];
-};
-layout(std430, binding = 3) readonly buffer MajorantBuffer {
-  float majorant[];
-};
-layout(std430, binding = 4) readonly buffer DenseBuffer {
+layout(std430, binding = BINDING_dense) readonly buffer DenseBuffer {
   float dense[];
 };
-layout(std430, binding = 5) writeonly buffer OutBuffer {
+layout(std430, binding = BINDING_result) writeonly buffer OutBuffer {
   float result[];
 };
 layout(push_constant) uniform Push {
@@ -48,8 +36,6 @@ layout(push_constant) uniform Push {
   ivec4 dense_dims;    // extent of the dense box
 }
 pc;
-#define PNANOVDB_GLSL
-#include "nanovdb/PNanoVDB.h"
 #include "volume/medium.glsl"
 
 #if HAZE_DENSE

@@ -10,34 +10,25 @@ layout(constant_id = 0) const uint CLASSIC = 0u;
 
 #include "denoise/svgf_layout.glsl"
 
-layout(std430, binding = 0) readonly buffer Params {
-  SvgfGpuParams P;
-};
-layout(std430, binding = 1) readonly buffer Input {
+layout(std430, binding = BINDING_colour) readonly buffer Input {
   float colour[];
 };
-layout(std430, binding = 2) readonly buffer GBuf {
-  float gbuf[];
-};
-layout(std430, binding = 3) readonly buffer PrevGBuf {
-  float prev_gbuf[];
-};
-layout(std430, binding = 4) readonly buffer Motion {
+layout(std430, binding = BINDING_motion) readonly buffer Motion {
   float motion[];
 };
-layout(std430, binding = 5) readonly buffer Percentiles {
+layout(std430, binding = BINDING_percentiles) readonly buffer Percentiles {
   vec4 percentiles[];
 };
-layout(std430, binding = 6) readonly buffer HistoryColour {
+layout(std430, binding = BINDING_hist_colour) readonly buffer HistoryColour {
   uvec2 hist_colour[];
 };
-layout(std430, binding = 7) readonly buffer HistoryMoments {
+layout(std430, binding = BINDING_hist_moments) readonly buffer HistoryMoments {
   float hist_moments[];
 };
-layout(std430, binding = 8) writeonly buffer OutColour {
+layout(std430, binding = BINDING_out_colour) writeonly buffer OutColour {
   uvec2 out_colour[];  // rgb, history length
 };
-layout(std430, binding = 9) writeonly buffer OutMoments {
+layout(std430, binding = BINDING_out_moments) writeonly buffer OutMoments {
   uvec2 out_moments[];  // m1, m2 as float bits
 };
 
@@ -47,8 +38,6 @@ layout(push_constant) uniform Push {
 }
 pc;
 
-#define SVGF_GBUFFER
-#define SVGF_PREV_GBUFFER
 #include "common/rng.glsl"
 #include "denoise/svgf_common.glsl"
 

@@ -12,16 +12,10 @@ layout(constant_id = 1) const uint SUBSAMPLED = 0u;
 
 #include "denoise/svgf_layout.glsl"
 
-layout(std430, binding = 0) readonly buffer Params {
-  SvgfGpuParams P;
-};
-layout(std430, binding = 1) readonly buffer GBuf {
-  float gbuf[];
-};
-layout(std430, binding = 2) readonly buffer In {
+layout(std430, binding = BINDING_in_colour) readonly buffer In {
   uvec2 in_colour[];  // rgb, sigma
 };
-layout(std430, binding = 3) writeonly buffer Out {
+layout(std430, binding = BINDING_out_colour) writeonly buffer Out {
   uvec2 out_colour[];
 };
 
@@ -30,7 +24,6 @@ layout(push_constant) uniform Push {
 }
 pc;
 
-#define SVGF_GBUFFER
 #include "denoise/svgf_common.glsl"
 
 // B3-spline a-trous weights for offsets 0, 1, 2.

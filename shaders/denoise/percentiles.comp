@@ -8,13 +8,10 @@ layout(local_size_x = 8, local_size_y = 8) in;
 
 #include "denoise/svgf_layout.glsl"
 
-layout(std430, binding = 0) readonly buffer Params {
-  SvgfGpuParams P;
-};
-layout(std430, binding = 1) readonly buffer Input {
+layout(std430, binding = BINDING_colour) readonly buffer Input {
   float colour[];
 };
-layout(std430, binding = 2) writeonly buffer Percentiles {
+layout(std430, binding = BINDING_percentiles) writeonly buffer Percentiles {
   vec4 percentiles[];
 };
 

@@ -1,6 +1,5 @@
-// Helpers shared by the SVGF passes (denoise/svgf.cpp runs them). Before including, declare
-//   layout(std430, binding = 0) readonly buffer Params { SvgfGpuParams P; };
-// and, for the G-buffer helpers, the current and previous G-buffers as gbuf[] and prev_gbuf[].
+// Helpers shared by the SVGF passes (denoise/svgf.cpp declares and runs them). The parameter block P is
+// declared here; the G-buffer helpers read the layers of common/gbuffer.glsl that the kernel declares.
 #ifndef HAZE_SVGF_COMMON_GLSL
 #define HAZE_SVGF_COMMON_GLSL
 
@@ -8,6 +7,10 @@
 #include "common/gbuffer.glsl"
 #include "common/packing.glsl"
 #include "denoise/svgf_layout.glsl"
+
+layout(std430, binding = BINDING_params) readonly buffer Params {
+  SvgfGpuParams P;
+};
 
 // Integer test: fast-math compilers may fold isnan/isinf away, bits they cannot.
 bool svgf_finite(vec4 v) {
@@ -40,23 +43,25 @@ struct GPixel {
   float z_prev;  // distance of this point from the previous camera (0: unknown)
 };
 
-#define SVGF_G_LOAD(buf, p)                                                           \
-  GPixel g;                                                                           \
-  uint b = (p)*G_STRIDE;                                                              \
-  g.z = buf[b + G_DEPTH];                                                             \
-  g.dz = vec2(buf[b + G_DDEPTH], buf[b + G_DDEPTH + 1u]);                             \
-  g.n = oct_decode(vec2(buf[b + G_NORMAL], buf[b + G_NORMAL + 1u]));                  \
-  g.albedo = vec3(buf[b + G_ALBEDO], buf[b + G_ALBEDO + 1u], buf[b + G_ALBEDO + 2u]); \
-  g.id = floatBitsToUint(buf[b + G_INSTANCE]);                                        \
-  g.z_prev = buf[b + G_PREV_DEPTH];                                                   \
+GPixel g_unpack(vec4 depth, vec4 normal, vec4 albedo) {
+  GPixel g;
+  g.z = depth.x;
+  g.dz = depth.yz;
+  g.z_prev = depth.w;
+  g.n = oct_decode(normal.xy);
+  g.albedo = albedo.rgb;
+  g.id = floatBitsToUint(albedo.w);
   return g;
+}
 
-#ifdef SVGF_GBUFFER
-GPixel g_load(uint p){SVGF_G_LOAD(gbuf, p)}
+#ifdef BINDING_g_depth
+GPixel g_load(uint p) {
+  return g_unpack(g_depth[p], g_normal[p], g_albedo[p]);
+}
 #endif
-#ifdef SVGF_PREV_GBUFFER
+#ifdef BINDING_prev_g_depth
 GPixel g_load_prev(uint p) {
-  SVGF_G_LOAD(prev_gbuf, p)
+  return g_unpack(prev_g_depth[p], prev_g_normal[p], prev_g_albedo[p]);
 }
 #endif
 

@@ -7,22 +7,16 @@ layout(local_size_x = 8, local_size_y = 8) in;
 
 #include "denoise/svgf_layout.glsl"
 
-layout(std430, binding = 0) readonly buffer Params {
-  SvgfGpuParams P;
-};
-layout(std430, binding = 1) readonly buffer GBuf {
-  float gbuf[];
-};
-layout(std430, binding = 2) readonly buffer Motion {
+layout(std430, binding = BINDING_motion) readonly buffer Motion {
   float motion[];
 };
-layout(std430, binding = 3) readonly buffer Filtered {
+layout(std430, binding = BINDING_filtered) readonly buffer Filtered {
   uvec2 filtered[];  // demodulated rgb, sigma
 };
-layout(std430, binding = 4) readonly buffer PrevOutput {
+layout(std430, binding = BINDING_prev_output) readonly buffer PrevOutput {
   uvec2 prev_output[];
 };
-layout(std430, binding = 5) writeonly buffer Output {
+layout(std430, binding = BINDING_outp) writeonly buffer Output {
   uvec2 outp[];  // remodulated rgb, sigma of the filtered signal (remodulated by luminance)
 };
 
@@ -31,7 +25,6 @@ layout(push_constant) uniform Push {
 }
 pc;
 
-#define SVGF_GBUFFER
 #include "denoise/svgf_common.glsl"
 
 vec3 remodulation(uint p) {

@@ -10,13 +10,13 @@ layout(local_size_x = 64) in;
 layout(constant_id = 0) const uint SURFACE_HALF = 1u;  // 1: the surface signal is an SVGF output
 layout(constant_id = 1) const uint VOLUME_HALF = 0u;   // 1: the volume signal is an SVGF output
 
-layout(std430, binding = 0) readonly buffer Surface {
+layout(std430, binding = BINDING_surface) readonly buffer Surface {
   uint surface[];
 };
-layout(std430, binding = 1) readonly buffer Volume {
+layout(std430, binding = BINDING_volume) readonly buffer Volume {
   uint volume[];
 };
-layout(std430, binding = 2) writeonly buffer Ldr {
+layout(std430, binding = BINDING_ldr) writeonly buffer Ldr {
   uint ldr[];
 };
 

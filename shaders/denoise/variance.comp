@@ -10,26 +10,19 @@ layout(constant_id = 0) const uint CLASSIC = 0u;
 
 #include "denoise/svgf_layout.glsl"
 
-layout(std430, binding = 0) readonly buffer Params {
-  SvgfGpuParams P;
-};
-layout(std430, binding = 1) readonly buffer GBuf {
-  float gbuf[];
-};
-layout(std430, binding = 2) readonly buffer AccColour {
+layout(std430, binding = BINDING_acc_colour) readonly buffer AccColour {
   uvec2 acc_colour[];  // rgb, history length
 };
-layout(std430, binding = 3) readonly buffer AccMoments {
+layout(std430, binding = BINDING_acc_moments) readonly buffer AccMoments {
   uvec2 acc_moments[];  // m1, m2 as float bits
 };
-layout(std430, binding = 4) writeonly buffer OutColour {
+layout(std430, binding = BINDING_out_colour) writeonly buffer OutColour {
   uvec2 out_colour[];  // rgb, sigma
 };
-layout(std430, binding = 5) writeonly buffer HistoryMoments {
+layout(std430, binding = BINDING_hist_moments) writeonly buffer HistoryMoments {
   float hist_moments[];  // m1, m2, n for the next frame
 };
 
-#define SVGF_GBUFFER
 #include "denoise/svgf_common.glsl"
 
 vec2 moments_at(uint p) {

@@ -1,5 +1,5 @@
 #version 460
-// Temporal reuse of the guiding states (DESIGN.md section 3): each vertex of this frame's grid takes the K
+// Temporal reuse of the guiding states (docs/guiding.md): each vertex of this frame's grid takes the K
 // states of the previous frame's vertex nearest to where its pixel's virtual point was (the volume motion),
 // with the moments shifted by the point's change of distance along the ray. Vertices whose point came from
 // outside the previous grid start empty.
@@ -10,16 +10,13 @@ layout(local_size_x = 64) in;
 #include "guiding/guide.glsl"
 #include "volume/gpu_scene.glsl"
 
-layout(std430, binding = 0) readonly buffer SceneBuffer {
-  GpuScene scene;
-};
-layout(std430, binding = 1) readonly buffer Motion {
+layout(std430, binding = BINDING_motion) readonly buffer Motion {
   vec4 motion[];  // guiding::VolumeMotion output: xy previous - current position, z change of distance
 };
-layout(std430, binding = 2) readonly buffer PrevStates {
+layout(std430, binding = BINDING_prev_states) readonly buffer PrevStates {
   vec4 prev_states[];
 };
-layout(std430, binding = 3) writeonly buffer States {
+layout(std430, binding = BINDING_states) writeonly buffer States {
   vec4 states[];
 };
 

@@ -1,5 +1,5 @@
 #version 460
-// Volume motion vectors (DESIGN.md section 3): the previous frame's virtual points projected forward into
+// Volume motion vectors (docs/guiding.md): the previous frame's virtual points projected forward into
 // this frame's camera. Two pipelines of this source (specialization constant RESOLVE):
 //  splat (0), one thread per previous pixel p: its point X = previous camera + d(p) * ray(p), moved by its
 //    medium, lands on pixel q of the current camera; atomicMin of (distance bits << 32 | p) into keys[q].
@@ -19,22 +19,18 @@ layout(local_size_x = 8, local_size_y = 8) in;
 
 layout(constant_id = 0) const uint RESOLVE = 0u;
 
-layout(std430, binding = 0) readonly buffer SceneBuffer {
-  GpuScene scene;  // cam_*: this frame's camera, prev_cam_*: the previous frame's
-};
-layout(std430, binding = 1) readonly buffer PrevDepth {
+layout(std430, binding = BINDING_prev_depth) readonly buffer PrevDepth {
   float prev_depth[];  // the previous frame's virtual point distance along the pixel-centre ray; 0: none
 };
-layout(std430, binding = 2) readonly buffer GBuffer {
-  float gbuf[];
+#ifdef BINDING_media_motion
+layout(std430, binding = BINDING_media_motion) readonly buffer Media {
+  MediumMotion media_motion[];  // pc.media_count of them: the media that moved
 };
-layout(std430, binding = 3) readonly buffer Media {
-  MediumMotion media[];  // not read when pc.media_count is 0 (any buffer may be bound then)
-};
-layout(std430, binding = 4) buffer Keys {
+#endif
+layout(std430, binding = BINDING_keys) buffer Keys {
   uint64_t keys[];  // per current pixel; all ones: no point landed
 };
-layout(std430, binding = 5) writeonly buffer Motion {
+layout(std430, binding = BINDING_motion) writeonly buffer Motion {
   vec4 motion[];
 };
 
@@ -59,12 +55,15 @@ bool project_point(uint p, out float d, out vec3 v, out vec2 q) {
   vec2 centre = vec2(p % pc.size.x, p / pc.size.x) + 0.5f;
   vec3 X = scene.prev_cam_position.xyz + d * camera_direction(scene.prev_cam_right.xyz, scene.prev_cam_up.xyz,
                                                               scene.prev_cam_forward.xyz, centre, size);
+#ifdef BINDING_media_motion
   for (uint i = 0u; i < pc.media_count; ++i) {
-    if (all(greaterThanEqual(X, media[i].prev_min.xyz)) && all(lessThanEqual(X, media[i].prev_max.xyz))) {
-      X = (media[i].prev_world_to_world * vec4(X, 1.0f)).xyz;
+    MediumMotion m = media_motion[i];
+    if (all(greaterThanEqual(X, m.prev_min.xyz)) && all(lessThanEqual(X, m.prev_max.xyz))) {
+      X = (m.prev_world_to_world * vec4(X, 1.0f)).xyz;
       break;
     }
   }
+#endif
   v = X - scene.cam_position.xyz;
   if (!(dot(v, scene.cam_forward.xyz) > 0.0f)) return false;
   q = camera_project_direction(scene.cam_right.xyz, scene.cam_up.xyz, scene.cam_forward.xyz, v, size);
@@ -90,7 +89,6 @@ void main() {
     vec2 centre = vec2(src % pc.size.x, src / pc.size.x) + 0.5f;
     motion[p] = vec4(centre - q, length(v) - d, 1.0f);
   } else {
-    uint g = p * G_STRIDE + G_MOTION;
-    motion[p] = vec4(gbuf[g], gbuf[g + 1u], 0.0f, 0.0f);
+    motion[p] = vec4(g_normal[p].zw, 0.0f, 0.0f);
   }
 }

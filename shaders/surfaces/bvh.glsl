@@ -1,12 +1,17 @@
 // Ray queries against the flattened surfaces BVH (surfaces/bvh.cpp): closest hit and occlusion.
-// Before including, declare the BVH's storage buffers under these names:
-//   layout(std430, binding = N) readonly buffer BvhNodes { GpuBvhNode bvh_nodes[]; };
-//   layout(std430, binding = M) readonly buffer BvhTriangles { GpuTriangle bvh_triangles[]; };
+// The kernel declares the bindings "bvh_nodes" and "bvh_triangles" (surfaces/device_surfaces.hpp).
 // No ray-query extension: a stack-based walk over the binary tree, nearer child first.
 #ifndef HAZE_BVH_GLSL
 #define HAZE_BVH_GLSL
 
 #include "surfaces/bvh_layout.glsl"
+
+layout(std430, binding = BINDING_bvh_nodes) readonly buffer BvhNodes {
+  GpuBvhNode bvh_nodes[];
+};
+layout(std430, binding = BINDING_bvh_triangles) readonly buffer BvhTriangles {
+  GpuTriangle bvh_triangles[];
+};
 
 struct BvhHit {
   float t;         // tmax on a miss

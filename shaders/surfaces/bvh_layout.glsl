@@ -1,4 +1,4 @@
-// The flattened BVH and the ray/hit records of the test kernel, shared with the host
+// The flattened BVH, the instance table and the ray/hit records of the test kernel, shared with the host
 // (surfaces/bvh_layout.hpp includes this with GLM). Only vec4/uvec4 members: std430 and C++ then have the
 // same layout. Integers stored in a vec4's w are bit patterns (floatBitsToUint / glm::uintBitsToFloat).
 #ifndef HAZE_BVH_LAYOUT_GLSL
@@ -24,6 +24,14 @@ struct GpuTriangle {
   vec4 v0;  // w: primitive id (triangle index within its mesh)
   vec4 v1;  // w: instance id
   vec4 v2;  // w: index in the input (world_triangles) order
+};
+
+// Per surface instance: its material and where its points were in the previous frame.
+struct GpuInstance {
+  vec4 albedo;               // rgb Lambertian reflectance
+  vec4 emission;             // rgb emitted radiance
+  mat4 world_to_prev_world;  // previous object_to_world * inverse(current object_to_world)
+  uvec4 texture;  // albedo texture: x first texel in the texel buffer, y width, z height; w 1 if any
 };
 
 // Texture coordinates of the corners of the GpuTriangle with the same index (textured scenes only).

@@ -1,40 +1,16 @@
 #version 460
-// The G-buffer (DESIGN.md section 5) from the ray through each pixel centre: linear depth, its gradient,
-// normal, albedo, instance id and motion (previous pixel position - current). Without surfaces only the
-// camera's own motion is left: directions at infinity reprojected into the previous camera.
+// The G-buffer (docs/rendering.md, conventions) from the ray through each pixel centre: linear depth, its
+// gradient, normal, albedo, instance id and motion (previous pixel position - current). Without surfaces only
+// the camera's own motion is left: directions at infinity reprojected into the previous camera.
 #extension GL_GOOGLE_include_directive : require
 layout(local_size_x = 8, local_size_y = 8) in;
 
 #include "common/camera.glsl"
 #include "common/compat.glsl"
 #include "common/packing.glsl"
+#define GBUFFER_ACCESS writeonly
 #include "volume/gpu_scene.glsl"
-
-layout(std430, binding = 0) readonly buffer SceneBuffer {
-  GpuScene scene;
-};
-layout(std430, binding = 1) writeonly buffer GBuffer {
-  float gbuf[];
-};
 #if HAZE_SURFACES
-#include "surfaces/bvh_layout.glsl"
-layout(std430, binding = 2) readonly buffer BvhNodes {
-  GpuBvhNode bvh_nodes[];
-};
-layout(std430, binding = 3) readonly buffer BvhTriangles {
-  GpuTriangle bvh_triangles[];
-};
-layout(std430, binding = 4) readonly buffer InstanceBuffer {
-  GpuInstance instances[];
-};
-#if HAZE_TEXTURE
-layout(std430, binding = 5) readonly buffer TriangleUvs {
-  GpuTriangleUv bvh_uvs[];
-};
-layout(std430, binding = 6) readonly buffer Texels {
-  uvec2 texels[];
-};
-#endif
 #include "surfaces/material.glsl"
 #endif
 
@@ -79,18 +55,8 @@ void main() {
 #endif
   vec2 motion = prev - centre;
   if (any(isnan(motion)) || any(isinf(motion))) motion = vec2(0.0f);
-  uint b = (pix.y * W + pix.x) * G_STRIDE;
-  gbuf[b + G_DEPTH] = depth;
-  gbuf[b + G_DDEPTH] = ddx;
-  gbuf[b + G_DDEPTH + 1u] = ddy;
-  vec2 e = oct_encode(n);
-  gbuf[b + G_NORMAL] = e.x;
-  gbuf[b + G_NORMAL + 1u] = e.y;
-  gbuf[b + G_ALBEDO] = albedo.r;
-  gbuf[b + G_ALBEDO + 1u] = albedo.g;
-  gbuf[b + G_ALBEDO + 2u] = albedo.b;
-  gbuf[b + G_INSTANCE] = uintBitsToFloat(instance);
-  gbuf[b + G_MOTION] = motion.x;
-  gbuf[b + G_MOTION + 1u] = motion.y;
-  gbuf[b + G_PREV_DEPTH] = prev_depth;
+  uint p = pix.y * W + pix.x;
+  g_depth[p] = vec4(depth, ddx, ddy, prev_depth);
+  g_normal[p] = vec4(oct_encode(n), motion);
+  g_albedo[p] = vec4(albedo, uintBitsToFloat(instance));
 }

@@ -1,12 +1,22 @@
 // Surface materials at a BVH hit: Lambertian albedo, constant per instance or times an albedo texture.
-// Before including, declare instances[] (GpuInstance) and, with HAZE_TEXTURE, the per-triangle uvs and the
-// texels:
-//   layout(std430, binding = N) readonly buffer TriangleUvs { GpuTriangleUv bvh_uvs[]; };
-//   layout(std430, binding = M) readonly buffer Texels { uvec2 texels[]; };
+// The kernel declares the binding "instances" and, with HAZE_TEXTURE, "bvh_uvs" (per-triangle corner uvs in
+// BVH leaf order) and "texels" (surfaces/device_surfaces.hpp).
 #ifndef HAZE_MATERIAL_GLSL
 #define HAZE_MATERIAL_GLSL
 
 #include "surfaces/bvh.glsl"
+
+layout(std430, binding = BINDING_instances) readonly buffer InstanceBuffer {
+  GpuInstance instances[];
+};
+#if HAZE_TEXTURE
+layout(std430, binding = BINDING_bvh_uvs) readonly buffer TriangleUvs {
+  GpuTriangleUv bvh_uvs[];
+};
+layout(std430, binding = BINDING_texels) readonly buffer Texels {
+  uvec2 texels[];
+};
+#endif
 
 #if HAZE_TEXTURE
 // Linear RGB of a texel stored as two packUnorm2x16 words (surfaces/texture.cpp); p wraps around.

@@ -8,16 +8,10 @@ layout(constant_id = 0) const uint ANY_HIT = 0u;
 
 #include "surfaces/bvh_layout.glsl"
 
-layout(std430, binding = 0) readonly buffer BvhNodes {
-  GpuBvhNode bvh_nodes[];
-};
-layout(std430, binding = 1) readonly buffer BvhTriangles {
-  GpuTriangle bvh_triangles[];
-};
-layout(std430, binding = 2) readonly buffer Rays {
+layout(std430, binding = BINDING_rays) readonly buffer Rays {
   GpuRay rays[];
 };
-layout(std430, binding = 3) writeonly buffer Hits {
+layout(std430, binding = BINDING_hits) writeonly buffer Hits {
   GpuRayHit hits[];
 };
 

@@ -4,27 +4,7 @@
 #define HAZE_GPU_SCENE_GLSL
 
 #include "common/gbuffer.glsl"
-
-// Light types in GpuLight.position.w. Local lights come first in the light array.
-const uint LIGHT_POINT = 0u;  // point and spot (a point is a spot with no falloff)
-const uint LIGHT_SUN = 1u;
-const uint LIGHT_ENV = 2u;
-const uint LIGHT_TRIANGLE = 3u;  // an emissive surface triangle (two-sided)
-
-struct GpuLight {
-  vec4 position;   // xyz position (local), w: type
-  vec4 radiance;   // rgb: intensity (local), irradiance (sun), radiance (env)
-  vec4 direction;  // xyz: spot axis (local), direction towards the sun
-  vec4 params;     // local: x cos_outer, y cos_inner of the spot falloff; sun: x cos of the half angle
-};
-
-// Per surface instance: its material and where its points were in the previous frame.
-struct GpuInstance {
-  vec4 albedo;               // rgb Lambertian reflectance
-  vec4 emission;             // rgb emitted radiance
-  mat4 world_to_prev_world;  // previous object_to_world * inverse(current object_to_world)
-  uvec4 texture;  // albedo texture: x first texel in the texel buffer, y width, z height; w 1 if any
-};
+#include "common/layers.glsl"
 
 struct GpuMedium {
   mat4 world_to_index;
@@ -63,19 +43,35 @@ struct GpuScene {
   vec4 guide_learn;  // x: vertex spacing in pixels, y: learn (0/1), z: max count N, w: min alpha
 };
 
-// Accumulation layout per pixel: sums, then sums of squares. SURF_DEMOD is the surface term divided by the
-// albedo of the first surface hit, per sample (the surface denoiser's input). The virtual point sums: VP_WT
-// and VP_W are sum(Y t) and sum(Y) over the distance samples (Y: luminance of each one's volume
-// contribution); VP_G and VP_GN sum the mean of the guide state each sample chose, and count them.
-const uint ACC_L = 0u, ACC_VOL = 3u, ACC_SURF = 6u, ACC_T = 9u, ACC_DEPTH = 10u;
-const uint ACC_L2 = 11u, ACC_VOL2 = 14u, ACC_SURF2 = 17u, ACC_T2 = 20u;
-const uint ACC_DEMOD = 21u, ACC_DEMOD2 = 24u;
-const uint ACC_VP_WT = 27u, ACC_VP_W = 28u, ACC_VP_G = 29u, ACC_VP_GN = 30u;
-const uint ACC_STRIDE = 31u;
+// Per-pixel data lives in vec4 layers, one buffer each (gpu/pixel_layers.hpp), so that every buffer of a
+// frame stays within maxStorageBufferRange. On the host a download interleaves them: the offsets below are
+// 4 * layer + component, and the layer names (render/frame.hpp) are in layer order.
+//
+// Accumulation, sums then sums of squares: acc_l (L, T), acc_l2 (L², T²), acc_vol (volume term, depth),
+// acc_vol2 (its squares), acc_surf, acc_surf2 (surface term), acc_demod, acc_demod2 (the surface term
+// divided by the albedo of the first surface hit, per sample: the surface denoiser's input) and acc_vp, the
+// virtual point sums: VP_WT and VP_W are sum(Y t) and sum(Y) over the distance samples (Y: luminance of
+// each one's volume contribution); VP_G and VP_GN sum the mean of the guide state each sample chose, and
+// count them.
+const uint ACC_L = 0u, ACC_T = 3u, ACC_L2 = 4u, ACC_T2 = 7u, ACC_VOL = 8u, ACC_DEPTH = 11u;
+const uint ACC_VOL2 = 12u, ACC_SURF = 16u, ACC_SURF2 = 20u, ACC_DEMOD = 24u, ACC_DEMOD2 = 28u;
+const uint ACC_VP_WT = 32u, ACC_VP_W = 33u, ACC_VP_G = 34u, ACC_VP_GN = 35u;
+const uint ACC_STRIDE = 36u;
 
-// Resolved output per pixel. VPDEPTH: the virtual point depth (0: none).
-const uint OUT_L = 0u, OUT_VOL = 3u, OUT_SURF = 6u, OUT_T = 9u, OUT_DEPTH = 10u, OUT_VAR = 11u;
-const uint OUT_DEMOD = 14u, OUT_DEMOD_M2 = 17u, OUT_VPDEPTH = 20u;
-const uint OUT_STRIDE = 21u;
+// Resolved means: out_l (L, depth), out_vol (volume term, virtual point depth: 0 where none), out_surf
+// (surface term, transmittance), out_var (sample variance of L), out_demod, out_demod_m2 (the demodulated
+// surface term and its second moment).
+const uint OUT_L = 0u, OUT_DEPTH = 3u, OUT_VOL = 4u, OUT_VPDEPTH = 7u, OUT_SURF = 8u, OUT_T = 11u;
+const uint OUT_VAR = 12u, OUT_DEMOD = 16u, OUT_DEMOD_M2 = 20u;
+const uint OUT_STRIDE = 24u;
+
+#ifndef __cplusplus
+// The frame's scene block, in every kernel that declares the binding "scene".
+#ifdef BINDING_scene
+layout(std430, binding = BINDING_scene) readonly buffer SceneBuffer {
+  GpuScene scene;
+};
+#endif
+#endif
 
 #endif

@@ -1,8 +1,23 @@
 // The medium seen by the tracker: sigma_t at a point (with the stochastic choice of the scattering
 // component), the piecewise-constant majorant along a ray, and ratio/delta tracking on top of them.
-// Expects: scene (GpuScene), and with HAZE_HETERO the buffers media[], majorant[] and PNanoVDB.
+// Reads the scene block and, with HAZE_HETERO, the bindings "nanovdb" (every grid, read by PNanoVDB),
+// "media" and "majorant" (volume/media.hpp).
 #ifndef HAZE_MEDIUM_GLSL
 #define HAZE_MEDIUM_GLSL
+
+#if HAZE_HETERO
+layout(std430, binding = BINDING_nanovdb) readonly buffer NanoBuffer {
+  uint pnanovdb_buf_data[];
+};
+layout(std430, binding = BINDING_media) readonly buffer MediaBuffer {
+  GpuMedium media[];
+};
+layout(std430, binding = BINDING_majorant) readonly buffer MajorantBuffer {
+  float majorant[];
+};
+#define PNANOVDB_GLSL
+#include "nanovdb/PNanoVDB.h"
+#endif
 
 struct MediumSample {
   float sigma_t;        // total extinction

@@ -8,13 +8,20 @@ layout(local_size_x = 64) in;
 #include "common/compat.glsl"
 #include "volume/gpu_scene.glsl"
 
-layout(std430, binding = 0) readonly buffer AccumBuffer {
-  float accum[];
-};
-layout(std430, binding = 1) writeonly buffer OutBuffer {
-  float outp[];
-};
-layout(std430, binding = 2) writeonly buffer LdrBuffer {
+PIXEL_LAYER_IN(acc_l);
+PIXEL_LAYER_IN(acc_l2);
+PIXEL_LAYER_IN(acc_vol);
+PIXEL_LAYER_IN(acc_surf);
+PIXEL_LAYER_IN(acc_demod);
+PIXEL_LAYER_IN(acc_demod2);
+PIXEL_LAYER_IN(acc_vp);
+PIXEL_LAYER_OUT(out_l);
+PIXEL_LAYER_OUT(out_vol);
+PIXEL_LAYER_OUT(out_surf);
+PIXEL_LAYER_OUT(out_var);
+PIXEL_LAYER_OUT(out_demod);
+PIXEL_LAYER_OUT(out_demod_m2);
+layout(std430, binding = BINDING_ldr) writeonly buffer LdrBuffer {
   uint ldr[];
 };
 
@@ -29,25 +36,25 @@ pc;
 void main() {
   uint p = gl_GlobalInvocationID.x;
   if (p >= pc.pixels) return;
-  uint a = p * ACC_STRIDE, o = p * OUT_STRIDE;
   float n = float(max(pc.samples, 1u));
-  for (uint k = 0u; k < 11u; ++k) outp[o + k] = accum[a + k] / n;
-  vec3 mean = vec3(accum[a + ACC_L], accum[a + ACC_L + 1], accum[a + ACC_L + 2]) / n;
-  vec3 m2 = vec3(accum[a + ACC_L2], accum[a + ACC_L2 + 1], accum[a + ACC_L2 + 2]) / n;
+  vec4 l = acc_l[p], l2 = acc_l2[p], vol = acc_vol[p], surf = acc_surf[p], vp = acc_vp[p];
+  vec3 mean = l.rgb / n;
+  vec3 m2 = l2.rgb / n;
   vec3 var = pc.samples > 1u ? max(m2 - mean * mean, vec3(0.0f)) * (n / (n - 1.0f)) : vec3(0.0f);
-  for (uint c = 0u; c < 3u; ++c) {
-    outp[o + OUT_VAR + c] = var[c];
-    outp[o + OUT_DEMOD + c] = accum[a + ACC_DEMOD + c] / n;
-    outp[o + OUT_DEMOD_M2 + c] = accum[a + ACC_DEMOD2 + c] / n;
-  }
 
   // Virtual point depth: where the volume contribution concentrates, else the guide's mean, else the depth.
-  float vp = accum[a + ACC_DEPTH] / n;
-  if (accum[a + ACC_VP_W] > 0.0f)
-    vp = accum[a + ACC_VP_WT] / accum[a + ACC_VP_W];
-  else if (accum[a + ACC_VP_GN] > 0.0f)
-    vp = accum[a + ACC_VP_G] / accum[a + ACC_VP_GN];
-  outp[o + OUT_VPDEPTH] = vp;
+  float depth = vol.w / n;
+  float vp_depth = depth;
+  if (vp.y > 0.0f)
+    vp_depth = vp.x / vp.y;
+  else if (vp.w > 0.0f)
+    vp_depth = vp.z / vp.w;
 
+  out_l[p] = vec4(mean, depth);
+  out_vol[p] = vec4(vol.rgb / n, vp_depth);
+  out_surf[p] = vec4(surf.rgb / n, l.w / n);
+  out_var[p] = vec4(var, 0.0f);
+  out_demod[p] = vec4(acc_demod[p].rgb / n, 0.0f);
+  out_demod_m2[p] = vec4(acc_demod2[p].rgb / n, 0.0f);
   ldr[p] = pack_srgb8(tonemap(mean * pc.exposure_scale, pc.tonemap));
 }

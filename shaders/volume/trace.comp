@@ -17,72 +17,27 @@ layout(local_size_x = 8, local_size_y = 8) in;
 #include "common/sampling.glsl"
 #include "volume/gpu_scene.glsl"
 
-#if HAZE_SUN || HAZE_ENV || HAZE_LOCAL || HAZE_AREA
-#define HAZE_LIGHTS 1
-#endif
+// The bindings come from the kernel's declaration (render/renderer.cpp): the scene block, the accumulation
+// layers, and whatever the scene's parts declare (lights, media, surfaces, guiding).
+PIXEL_LAYER(acc_l);
+PIXEL_LAYER(acc_l2);
+PIXEL_LAYER(acc_vol);
+PIXEL_LAYER(acc_vol2);
+PIXEL_LAYER(acc_surf);
+PIXEL_LAYER(acc_surf2);
+PIXEL_LAYER(acc_demod);
+PIXEL_LAYER(acc_demod2);
+PIXEL_LAYER(acc_vp);
 
-layout(std430, binding = 0) readonly buffer SceneBuffer {
-  GpuScene scene;
-};
-layout(std430, binding = 1) buffer AccumBuffer {
-  float accum[];
-};
-#if HAZE_LIGHTS
-layout(std430, binding = 2) readonly buffer LightBuffer {
-  GpuLight lights[];
-};
-#define BINDING_AFTER_LIGHTS 3
-#else
-#define BINDING_AFTER_LIGHTS 2
-#endif
-#if HAZE_HETERO
-layout(std430, binding = BINDING_AFTER_LIGHTS) readonly buffer NanoBuffer {
-  uint pnanovdb_buf_data[];
-};
-layout(std430, binding = BINDING_AFTER_LIGHTS + 1) readonly buffer MediaBuffer {
-  GpuMedium media[];
-};
-layout(std430, binding = BINDING_AFTER_LIGHTS + 2) readonly buffer MajorantBuffer {
-  float majorant[];
-};
-#define PNANOVDB_GLSL
-#include "nanovdb/PNanoVDB.h"
-#define BINDING_SURFACES (BINDING_AFTER_LIGHTS + 3)
-#else
-#define BINDING_SURFACES BINDING_AFTER_LIGHTS
-#endif
+#include "lights/lights.glsl"
+#include "volume/medium.glsl"
 #if HAZE_SURFACES
-#include "surfaces/bvh_layout.glsl"
-layout(std430, binding = BINDING_SURFACES) readonly buffer BvhNodes {
-  GpuBvhNode bvh_nodes[];
-};
-layout(std430, binding = BINDING_SURFACES + 1) readonly buffer BvhTriangles {
-  GpuTriangle bvh_triangles[];
-};
-layout(std430, binding = BINDING_SURFACES + 2) readonly buffer InstanceBuffer {
-  GpuInstance instances[];
-};
-#if HAZE_TEXTURE
-layout(std430, binding = BINDING_SURFACES + 3) readonly buffer TriangleUvs {
-  GpuTriangleUv bvh_uvs[];
-};
-layout(std430, binding = BINDING_SURFACES + 4) readonly buffer Texels {
-  uvec2 texels[];
-};
-#endif
 #include "surfaces/material.glsl"
-#if HAZE_TEXTURE
-#define BINDING_GUIDE (BINDING_SURFACES + 5)
-#else
-#define BINDING_GUIDE (BINDING_SURFACES + 3)
-#endif
-#else
-#define BINDING_GUIDE BINDING_SURFACES
 #endif
 #if HAZE_GUIDING
 #include "guiding/guide.glsl"
 // K states per grid vertex, read and written by every sample (a Markov chain of states, not a histogram).
-layout(std430, binding = BINDING_GUIDE) buffer GuideStates {
+layout(std430, binding = BINDING_guide_states) buffer GuideStates {
   vec4 guide_states[];
 };
 #endif
@@ -91,9 +46,6 @@ layout(push_constant) uniform Push {
   uint sample_index;
 }
 pc;
-
-#include "volume/lights.glsl"
-#include "volume/medium.glsl"
 
 const int ST_SURFACE = 0;  // ratio tracking T(0, t_s) for the surface term
 const int ST_CAMERA = 1;   // ratio tracking T(0, t_j) to a sampled distance, with the medium at t_j
@@ -442,22 +394,13 @@ void main() {
     L_surf = vec3(0.0f);
     demod = vec3(0.0f);
   }
-  uint base = pixel * ACC_STRIDE;
-  for (int c = 0; c < 3; ++c) {
-    accum[base + ACC_L + c] += L[c];
-    accum[base + ACC_VOL + c] += L_vol[c];
-    accum[base + ACC_SURF + c] += L_surf[c];
-    accum[base + ACC_DEMOD + c] += demod[c];
-    accum[base + ACC_L2 + c] += L[c] * L[c];
-    accum[base + ACC_VOL2 + c] += L_vol[c] * L_vol[c];
-    accum[base + ACC_SURF2 + c] += L_surf[c] * L_surf[c];
-    accum[base + ACC_DEMOD2 + c] += demod[c] * demod[c];
-  }
-  accum[base + ACC_T] += T_surf;
-  accum[base + ACC_T2] += T_surf * T_surf;
-  accum[base + ACC_DEPTH] += t_s < T_INF * 0.5f ? t_s : 0.0f;
-  accum[base + ACC_VP_WT] += vp_wt;
-  accum[base + ACC_VP_W] += vp_w;
-  accum[base + ACC_VP_G] += vp_g;
-  accum[base + ACC_VP_GN] += vp_gn;
+  acc_l[pixel] += vec4(L, T_surf);
+  acc_l2[pixel] += vec4(L * L, T_surf * T_surf);
+  acc_vol[pixel] += vec4(L_vol, t_s < T_INF * 0.5f ? t_s : 0.0f);
+  acc_vol2[pixel] += vec4(L_vol * L_vol, 0.0f);
+  acc_surf[pixel] += vec4(L_surf, 0.0f);
+  acc_surf2[pixel] += vec4(L_surf * L_surf, 0.0f);
+  acc_demod[pixel] += vec4(demod, 0.0f);
+  acc_demod2[pixel] += vec4(demod * demod, 0.0f);
+  acc_vp[pixel] += vec4(vp_wt, vp_w, vp_g, vp_gn);
 }

@@ -15,5 +15,8 @@ using uint = glm::uint;
 #include "shaders/common/rng.glsl"
 #include "shaders/common/sampling.glsl"
 #include "shaders/guiding/guide.glsl"
+#include "shaders/guiding/volume_motion_layout.glsl"
+#include "shaders/lights/light_layout.glsl"
+#include "shaders/surfaces/bvh_layout.glsl"
 #include "shaders/volume/gpu_scene.glsl"
 }  // namespace haze::glsl

@@ -1,6 +1,17 @@
-// Light sampling for next-event estimation and the radiance seen by rays that leave the scene.
+// Light sampling for next-event estimation and the radiance seen by rays that leave the scene. The
+// kernel declares the binding "lights" when the scene has any (lights/lights.hpp); background() reads
+// only the scene block.
 #ifndef HAZE_LIGHTS_GLSL
 #define HAZE_LIGHTS_GLSL
+
+#include "lights/light_layout.glsl"
+
+#if HAZE_SUN || HAZE_ENV || HAZE_LOCAL || HAZE_AREA
+#define HAZE_LIGHTS 1
+layout(std430, binding = BINDING_lights) readonly buffer LightBuffer {
+  GpuLight lights[];
+};
+#endif
 
 vec3 background(vec3 d) {
   vec3 L = scene.env.rgb;

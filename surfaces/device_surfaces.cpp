@@ -1,0 +1,76 @@
+#include "surfaces/device_surfaces.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+
+namespace haze::surfaces {
+namespace {
+
+template <class T>
+void keep(gpu::Context& ctx, gpu::Buffer& b, bool wanted, const char* name, const std::vector<T>& data,
+          const std::string& format) {
+  if (!wanted) {
+    b = gpu::Buffer();
+    return;
+  }
+  const uint64_t bytes = data.size() * sizeof(T);
+  if (!b.valid() || b.size() != bytes) b = gpu::Buffer(ctx, name, "scene data", bytes, format);
+  b.upload(data);
+}
+
+}  // namespace
+
+void DeviceSurfaces::update(const scene::Scene& s, const scene::Scene& p) {
+  geometry_ = build_geometry(s, &geometry_);
+  textured_ = std::any_of(s.surfaces.begin(), s.surfaces.end(),
+                          [](const scene::Surface& m) { return !m.albedo_texture.empty(); });
+  const bool on = !s.surfaces.empty();
+  keep(ctx_, bvh_.nodes, on, "bvh nodes", geometry_.bvh.nodes, "GpuBvhNode");
+  keep(ctx_, bvh_.triangles, on, "bvh triangles", geometry_.bvh.triangles, "GpuTriangle");
+  std::vector<glm::uvec4> placement;
+  std::vector<glm::uvec2> texels = packed_texels(geometry_, &placement);
+  std::vector<glsl::GpuInstance> inst;
+  for (size_t i = 0; i < s.surfaces.size(); ++i) {
+    glsl::GpuInstance g{};
+    if (geometry_.instance_texture[i] >= 0) g.texture = placement[size_t(geometry_.instance_texture[i])];
+    g.albedo = glm::vec4(s.surfaces[i].albedo, 0);
+    g.emission = glm::vec4(s.surfaces[i].emission, 0);
+    glm::mat4 now = s.surfaces[i].transform.matrix();
+    glm::mat4 before = i < p.surfaces.size() ? p.surfaces[i].transform.matrix() : now;
+    g.world_to_prev_world = glm::mat4(glm::dmat4(before) * glm::inverse(glm::dmat4(now)));
+    inst.push_back(g);
+  }
+  keep(ctx_, instances_, on, "instances", inst, "GpuInstance");
+  keep(ctx_, uvs_, on && textured_, "triangle uvs", geometry_.triangle_uvs, "GpuTriangleUv");
+  keep(ctx_, texels_, on && textured_, "albedo textures", texels,
+       fmt::format("RGB unorm16, {} textures", placement.size()));
+}
+
+void DeviceSurfaces::declare(gpu::KernelDecl& k) const {
+  if (!any()) return;
+  k.define("HAZE_SURFACES");
+  if (textured_) k.define("HAZE_TEXTURE");
+  bvh_.declare(k);
+  k.buffer("instances", instances_.size(), sizeof(glsl::GpuInstance));
+  if (textured_) {
+    k.buffer("bvh_uvs", uvs_.size(), sizeof(glsl::GpuTriangleUv));
+    k.buffer("texels", texels_.size(), 8);
+  }
+}
+
+void DeviceSurfaces::bind(gpu::Bindings& b) const {
+  if (!any()) return;
+  bvh_.bind(b);
+  b.set("instances", instances_);
+  if (textured_) {
+    b.set("bvh_uvs", uvs_);
+    b.set("texels", texels_);
+  }
+}
+
+void DeviceSurfaces::fill(glsl::GpuScene& g) const {
+  g.counts2.x = uint32_t(geometry_.instances.size());
+}
+
+}  // namespace haze::surfaces
