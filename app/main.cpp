@@ -49,11 +49,13 @@ struct Progress {
   }
 };
 
-gpu::ContextOptions context_options(const std::string& device, bool validation, const std::string& cache) {
+gpu::ContextOptions context_options(const std::string& device, bool validation, const std::string& cache,
+                                    const std::string& shader_cache) {
   gpu::ContextOptions o;
   o.device = device;
   o.validation = validation;
   o.pipeline_cache = cache;
+  o.shader_cache = shader_cache;  // "" = $HAZE_SHADER_CACHE, else the XDG cache folder
   if (const char* e = std::getenv("HAZE_PIPELINE_CACHE"); o.pipeline_cache.empty() && e) o.pipeline_cache = e;
   return o;
 }
@@ -197,6 +199,7 @@ int run_sweep(const std::string& file, const std::string& out, const std::string
 int main(int argc, char** argv) {
   CLI::App app{"haze: a volumetric research renderer (OpenVDB media, Vulkan compute)"};
   app.require_subcommand(0, 1);
+  app.fallthrough();  // global options (--device, --shader-cache, ...) also after the subcommand
   std::string device;
   bool validation = false, list_devices = false;
   app.add_option("--device", device, "GPU by index or name substring (also $HAZE_DEVICE)");
@@ -206,14 +209,21 @@ int main(int argc, char** argv) {
   app.add_option(
       "--pipeline-cache", pipeline_cache,
       "VkPipelineCache file to load and save (also $HAZE_PIPELINE_CACHE); speeds up start on real GPUs");
+  std::string shader_cache;
+  app.add_option("--shader-cache", shader_cache,
+                 "folder of compiled shader permutations (also $HAZE_SHADER_CACHE; default "
+                 "$XDG_CACHE_HOME/haze/shaders, else ~/.cache/haze/shaders)");
 
   auto* render = app.add_subcommand("render", "render a scene to EXR, PNG and stats.json");
   std::string scene_path, out_dir;
   int spp = 0;
   std::string size;
   std::vector<std::string> sets;
-  render->add_option("scene", scene_path, "scene JSON file")->required();
-  render->add_option("--out", out_dir, "output directory")->required();
+  bool help_params = false;
+  render->add_option("scene", scene_path, "scene JSON file (required unless --help-params)");
+  render->add_option("--out", out_dir, "output directory (required unless --help-params)");
+  render->add_flag("--help-params", help_params,
+                   "list every scene key (type, default, range, meaning) and exit; needs no scene");
   render->add_option("--spp", spp, "samples per pixel (overrides render.spp)")->check(CLI::PositiveNumber);
   render->add_option("--size", size, "WIDTHxHEIGHT (overrides render.width/height)");
   render->add_option("--set", sets, "override any scene value: dotted.path=value (repeatable)");
@@ -334,12 +344,21 @@ int main(int argc, char** argv) {
   }
 
   try {
-    gpu::ContextOptions co = context_options(device, validation, pipeline_cache);
+    gpu::ContextOptions co = context_options(device, validation, pipeline_cache, shader_cache);
     if (list_devices) {
       for (const auto& d : gpu::list_devices()) fmt::print("{}\n", d.dump());
       return 0;
     }
-    if (*render) return run_render(scene_path, out_dir, spp, size, frames, sets, co);
+    if (*render && help_params) {
+      fmt::print("{}", scene::format_params(scene::describe()));
+      return 0;
+    }
+    if (*render) {
+      if (scene_path.empty() || out_dir.empty())
+        throw std::runtime_error(
+            "haze render needs a scene file and --out DIR (or --help-params to list the keys)");
+      return run_render(scene_path, out_dir, spp, size, frames, sets, co);
+    }
     if (*make) {
       if (center.size() == 3) spec.center = {center[0], center[1], center[2]};
       if (extent.size() == 3) spec.size = {extent[0], extent[1], extent[2]};

@@ -2,11 +2,13 @@
 
 #include <fmt/format.h>
 #include <tbb/parallel_for.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <functional>
 #include <map>
 #include <set>
@@ -215,7 +217,10 @@ double ms_since(std::chrono::steady_clock::time_point t0) {
 // Wall time (steady clock) from constructing a Renderer for the bench scene to its first resolve(), split
 // into pipeline creation and the rest, against the median of steady-state frames of the same spp on that
 // renderer.
-json bench_first_frame(gpu::Context& ctx, const scene::Scene& s) {
+// One first frame in a fresh context (no pipeline of this process): wall time from Renderer construction to
+// the first resolve, the kernels' compile and creation time inside it, and steady frames after it.
+json first_frame_case(const gpu::ContextOptions& co, const scene::Scene& s) {
+  gpu::Context ctx(co);
   const int spp = s.render.spp;
   const auto t0 = std::chrono::steady_clock::now();
   render::Renderer r(ctx, s);
@@ -224,6 +229,7 @@ json bench_first_frame(gpu::Context& ctx, const scene::Scene& s) {
   r.resolve();
   const double first = ms_since(t0);
   const double pipelines = r.pipeline_ms();
+  const json shaders = r.stats()["shaders"];
   std::vector<double> steady;
   for (int i = 0; i < 3; ++i) {
     const auto t = std::chrono::steady_clock::now();
@@ -232,9 +238,7 @@ json bench_first_frame(gpu::Context& ctx, const scene::Scene& s) {
     steady.push_back(ms_since(t));
   }
   const double st = render::median(steady);
-  const char* cache = std::getenv("MESA_SHADER_CACHE_DIR");
-  return {{"spp", spp},
-          {"first_frame_ms", first},
+  return {{"first_frame_ms", first},
           {"construction_ms", construct},
           {"pipeline_creation_ms", pipelines},
           {"rest_ms", first - pipelines},
@@ -242,8 +246,38 @@ json bench_first_frame(gpu::Context& ctx, const scene::Scene& s) {
           {"steady_frames", steady},
           {"first_over_steady", first / st},
           {"pipeline_share_of_first_frame", pipelines / first},
-          {"mesa_shader_cache", "unknown (warm or cold: not detected)"},
-          {"mesa_shader_cache_dir", cache ? cache : ""}};
+          {"shaders", shaders}};
+}
+
+// Time to first frame with cold caches (haze's SPIR-V cache and Mesa's disk cache both empty, in a
+// temporary folder: glslang compiles every permutation, the driver every pipeline) and warm ones (the same
+// folders as the cold run left them, in another fresh context). $MESA_SHADER_CACHE_DIR is read when a
+// Vulkan instance starts, so each case's context sees the temporary folder.
+json bench_first_frame(const gpu::ContextOptions& co, const scene::Scene& s) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / fmt::format("haze-bench-first-frame-{}", ::getpid());
+  fs::remove_all(dir);
+  const char* mesa = std::getenv("MESA_SHADER_CACHE_DIR");
+  const std::string saved = mesa ? mesa : "";
+  ::setenv("MESA_SHADER_CACHE_DIR", (dir / "mesa").c_str(), 1);
+  gpu::ContextOptions c = co;
+  c.shader_cache = (dir / "spirv").string();
+  json cold, warm;
+  try {
+    cold = first_frame_case(c, s);
+    warm = first_frame_case(c, s);
+  } catch (...) {
+    mesa ? ::setenv("MESA_SHADER_CACHE_DIR", saved.c_str(), 1) : ::unsetenv("MESA_SHADER_CACHE_DIR");
+    fs::remove_all(dir);
+    throw;
+  }
+  mesa ? ::setenv("MESA_SHADER_CACHE_DIR", saved.c_str(), 1) : ::unsetenv("MESA_SHADER_CACHE_DIR");
+  std::error_code ec;
+  fs::remove_all(dir, ec);
+  return {{"spp", s.render.spp},
+          {"cold", cold},
+          {"warm", warm},
+          {"cold_over_warm", cold["first_frame_ms"].get<double>() / warm["first_frame_ms"].get<double>()}};
 }
 
 // The tracker's passes against a copy of the accumulation buffer, throughput figures, and density lookups
@@ -382,10 +416,13 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
     }
   if (j.contains("first_frame")) {
     const auto& f = j["first_frame"];
-    add("first/steady frame", f["first_over_steady"],
-        "wall time Renderer construction -> first resolve / a steady-state frame, same spp");
-    add("pipeline share of 1st frame", f["pipeline_share_of_first_frame"],
-        "pipeline creation / first frame (Mesa shader cache: warm or cold unknown)");
+    add("first/steady frame cold", f["cold"]["first_over_steady"],
+        "wall time Renderer construction -> first resolve / a steady frame, same spp; empty shader caches");
+    add("first/steady frame warm", f["warm"]["first_over_steady"],
+        "the same with haze's SPIR-V cache and Mesa's shader cache warm (a new process's second run)");
+    add("first frame cold/warm", f["cold_over_warm"], "first frame with empty caches / with warm caches");
+    add("kernel share of cold 1st frame", f["cold"]["pipeline_share_of_first_frame"],
+        "compiling permutations and creating pipelines / the cold first frame");
   }
   return rows;
 }
@@ -432,8 +469,8 @@ int run(const Options& o, const gpu::ContextOptions& co) {
   j["size"] = {w, h};
   j["spp"] = o.spp;
   j["parts"] = parts;
-  // first_frame runs first: no pipeline of the bench scene exists yet in this process.
-  if (wants("first_frame")) j["first_frame"] = bench_first_frame(ctx, s);
+  // first_frame makes contexts of its own, so that no pipeline of this process is reused.
+  if (wants("first_frame")) j["first_frame"] = bench_first_frame(co, s);
   if (wants("passes")) bench_passes(ctx, s, w, h, o.spp, j);
   if (wants("bvh")) {
     BvhFigures bvh = bench_bvh(ctx);
@@ -478,13 +515,19 @@ int run(const Options& o, const gpu::ContextOptions& co) {
                  r["meaning"].get<std::string>());
     if (j.contains("first_frame")) {
       const auto& f = j["first_frame"];
-      fmt::print(
-          "time to first frame at {}x{}, {} spp (wall clock): {:.0f} ms = pipeline creation {:.0f} ms + rest "
-          "{:.0f} "
-          "ms (construction {:.0f} ms); steady frame {:.0f} ms; Mesa shader cache warm or cold: unknown\n",
-          w, h, f["spp"].get<int>(), f["first_frame_ms"].get<double>(),
-          f["pipeline_creation_ms"].get<double>(), f["rest_ms"].get<double>(),
-          f["construction_ms"].get<double>(), f["steady_frame_ms"].get<double>());
+      fmt::print("time to first frame at {}x{}, {} spp (wall clock, a fresh context each):\n", w, h,
+                 f["spp"].get<int>());
+      for (const char* c : {"cold", "warm"}) {
+        const auto& x = f[c];
+        fmt::print(
+            "  {:<5} {:>7.0f} ms = kernels {:.0f} ms ({} compiled, {} from the cache, glslang {:.0f} ms) + "
+            "rest "
+            "{:.0f} ms; steady frame {:.0f} ms\n",
+            c, x["first_frame_ms"].get<double>(), x["pipeline_creation_ms"].get<double>(),
+            x["shaders"]["compiled"].get<int>(), x["shaders"]["cache_hits"].get<int>(),
+            x["shaders"]["compile_ms"].get<double>(), x["rest_ms"].get<double>(),
+            x["steady_frame_ms"].get<double>());
+      }
     }
     if (j.contains("passes")) {
       size_t pixels = size_t(w) * h;

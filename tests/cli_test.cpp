@@ -6,6 +6,7 @@
 
 #include <array>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -59,6 +60,61 @@ void expect_one_line_error(const Result& r, const std::string& needle) {
     std::string rest = r.out.substr(pos);
     EXPECT_EQ(rest.find('\n'), rest.size() - 1) << r.out;
   }
+}
+
+// Permutations are compiled on demand into the --shader-cache folder: the first run compiles, the second
+// takes every kernel from the cache; an unusable folder is one warning, never a failure.
+TEST_F(Cli, ShaderCacheCompilesOnceThenHits) {
+  const std::string scene = small_scene(), cache = (dir / "shaders").string();
+  auto shaders = [&](const fs::path& out) {
+    return nlohmann::json::parse(std::ifstream(out / "stats.json"))["shaders"];
+  };
+  auto r = run(fmt::format("render {} --out {} --shader-cache {}", scene, (dir / "a").string(), cache));
+  ASSERT_EQ(r.code, 0) << r.out;
+  const auto first = shaders(dir / "a");
+  EXPECT_GE(first["compiled"].get<int>(), 1) << first;
+  EXPECT_GT(first["compile_ms"].get<double>(), 0.0) << first;
+  r = run(fmt::format("render {} --out {} --shader-cache {}", scene, (dir / "b").string(), cache));
+  ASSERT_EQ(r.code, 0) << r.out;
+  const auto second = shaders(dir / "b");
+  EXPECT_EQ(second["compiled"].get<int>(), 0) << second;
+  EXPECT_GE(second["cache_hits"].get<int>(), 1) << second;
+  EXPECT_EQ(second["cache_hits"].get<int>(), first["compiled"].get<int>() + first["cache_hits"].get<int>());
+  // The same images either way.
+  for (const char* f : {"frame_0000.exr", "frame_0000.png"}) {
+    std::ifstream a(dir / "a" / f, std::ios::binary), b(dir / "b" / f, std::ios::binary);
+    EXPECT_TRUE(std::equal(std::istreambuf_iterator<char>(a), {}, std::istreambuf_iterator<char>(b), {}))
+        << f;
+  }
+  // HAZE_SHADER_CACHE names the folder too.
+  const char* saved = std::getenv("HAZE_SHADER_CACHE");
+  const std::string saved_value = saved ? saved : "";
+  ::setenv("HAZE_SHADER_CACHE", cache.c_str(), 1);
+  r = run(fmt::format("render {} --out {}", scene, (dir / "c").string()));
+  if (saved)
+    ::setenv("HAZE_SHADER_CACHE", saved_value.c_str(), 1);
+  else
+    ::unsetenv("HAZE_SHADER_CACHE");
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_EQ(shaders(dir / "c")["compiled"].get<int>(), 0);
+  // A folder that cannot be made (its parent is a file): one warning line, compiled in memory.
+  const std::string file = write("not_a_folder", "x");
+  r = run(fmt::format("render {} --out {} --shader-cache {}/cache", scene, (dir / "d").string(), file));
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_NE(r.out.find(fmt::format("haze: warning: shader cache {}/cache: ", file)), std::string::npos)
+      << r.out;
+  EXPECT_EQ(r.out.find("warning", r.out.find("warning") + 1), std::string::npos) << "one warning: " << r.out;
+  EXPECT_GE(shaders(dir / "d")["compiled"].get<int>(), 1);
+}
+
+TEST_F(Cli, HelpParamsNeedsNoScene) {
+  auto r = run("render --help-params");
+  ASSERT_EQ(r.code, 0) << r.out;
+  for (const char* key : {"camera.fov_y", "render.spp", "media[].albedo", "denoise.surface.phi_luminance",
+                          "guiding.probability", "lights.sun.irradiance"})
+    EXPECT_NE(r.out.find(key), std::string::npos) << key;
+  EXPECT_NE(r.out.find("default 45"), std::string::npos) << r.out.substr(0, 400);
+  expect_one_line_error(run("render"), "needs a scene file and --out DIR");
 }
 
 TEST_F(Cli, RenderWritesLayersPreviewAndStats) {

@@ -737,5 +737,126 @@ TEST_F(Gpu, SlotAndResourceMismatchesAreClear) {
   ctx().submit_and_wait([&](VkCommandBuffer cmd) { pipe.dispatch(cmd, {&a, &wbuf, &b}, &push, 1, 1); });
 }
 
+// ---- kernels: declared in C++, compiled on demand, bound by name ----
+
+// bench/copy.comp: dst[i] = src[i] for i < count, vec4 elements, bindings "src" and "dst".
+KernelDecl copy_decl(uint32_t count, bool dst_first = false) {
+  KernelDecl d("bench/copy.comp");
+  if (dst_first) d.buffer("dst", uint64_t(count) * 16, 16);
+  d.buffer("src", uint64_t(count) * 16, 16);
+  if (!dst_first) d.buffer("dst", uint64_t(count) * 16, 16);
+  return std::move(d.push(4));
+}
+
+std::vector<float> run_copy(Context& c, const Kernel& k, const Buffer& src, const Buffer& dst,
+                            uint32_t count) {
+  Bindings b;
+  b.set("src", src).set("dst", dst);
+  c.submit_and_wait([&](VkCommandBuffer cmd) { k.dispatch(cmd, b, &count, k.groups_1d(count)); });
+  return dst.download_vector<float>();
+}
+
+TEST_F(Gpu, KernelBindingNumbersComeFromTheDeclaration) {
+  const uint32_t n = 100;
+  std::vector<float> v = random_floats(n * 4, 7);
+  Buffer src(ctx(), "kernel src", "test", n * 16), dst(ctx(), "kernel dst", "test", n * 16);
+  src.upload(v);
+  // The same source with its two bindings in either order: the defines follow the declaration.
+  for (bool dst_first : {false, true}) {
+    Kernel k(ctx(), copy_decl(n, dst_first));
+    EXPECT_EQ(k.decl().bindings()[0].name, dst_first ? "dst" : "src");
+    const ShaderPermutation p = k.decl().permutation();
+    EXPECT_EQ(p.defines.back().first, dst_first ? "BINDING_src" : "BINDING_dst");
+    dst.fill_zero();
+    EXPECT_EQ(run_copy(ctx(), k, src, dst, n), v) << (dst_first ? "dst first" : "src first");
+  }
+}
+
+TEST_F(Gpu, KernelPipelineIsCreatedOncePerContext) {
+  Kernel a(ctx(), copy_decl(8));
+  const size_t pipelines = ctx().kernels().size();
+  Kernel b(ctx(), copy_decl(64));  // other size expectations, same pipeline
+  EXPECT_EQ(ctx().kernels().size(), pipelines);
+  EXPECT_EQ(&a.pipeline(), &b.pipeline());
+  EXPECT_EQ(b.setup_ms(), 0.0);
+  Kernel c(ctx(), std::move(copy_decl(8).define("UNUSED_FEATURE")));  // another permutation
+  EXPECT_EQ(ctx().kernels().size(), pipelines + 1);
+  EXPECT_NE(&a.pipeline(), &c.pipeline());
+}
+
+TEST_F(Gpu, KernelBindErrorsNameTheKernelAndTheBinding) {
+  const uint32_t n = 16;
+  Kernel k(ctx(), copy_decl(n));
+  Buffer src(ctx(), "kernel src", "test", n * 16), dst(ctx(), "kernel dst", "test", n * 16);
+  Buffer small(ctx(), "small one", "test", (n - 1) * 16), odd(ctx(), "odd one", "test", n * 16 + 4);
+  Image img(ctx(), "an image", "test", 4, 4, VK_FORMAT_R32G32B32A32_SFLOAT);
+  auto dispatch_error = [&](const Bindings& b) {
+    const uint32_t count = n;
+    return error_of(
+        [&] { ctx().submit_and_wait([&](VkCommandBuffer cmd) { k.dispatch(cmd, b, &count, 1); }); });
+  };
+  Bindings missing;
+  missing.set("src", src);
+  std::string msg = dispatch_error(missing);
+  EXPECT_TRUE(contains(msg, "kernel bench/copy.comp [default]: binding 'dst' is not bound")) << msg;
+  Bindings too_small;
+  too_small.set("src", small).set("dst", dst);
+  msg = dispatch_error(too_small);
+  EXPECT_TRUE(contains(msg, "binding 'src' is buffer 'small one' of 240 bytes; the kernel reads 256 bytes"))
+      << msg;
+  Bindings ragged;
+  ragged.set("src", src).set("dst", odd);
+  msg = dispatch_error(ragged);
+  EXPECT_TRUE(contains(msg, "binding 'dst' is buffer 'odd one' of 260 bytes, not a whole number of 16-byte"))
+      << msg;
+  Bindings image;
+  image.set("src", img).set("dst", dst);
+  msg = dispatch_error(image);
+  EXPECT_TRUE(contains(msg, "binding 'src' is a storage buffer, but image 'an image' is bound there")) << msg;
+  Bindings empty;
+  Buffer none;
+  empty.set("src", none).set("dst", dst);
+  msg = dispatch_error(empty);
+  EXPECT_TRUE(contains(msg, "binding 'src' is an empty buffer")) << msg;
+  // Extra resources a kernel does not declare are ignored; the kernel still works after the refusals.
+  Bindings extra;
+  extra.set("src", src).set("dst", dst).set("unrelated", small);
+  const uint32_t count = n;
+  ctx().submit_and_wait([&](VkCommandBuffer cmd) { k.dispatch(cmd, extra, &count, 1); });
+}
+
+TEST_F(Gpu, KernelCompileErrorsNameShaderPermutationAndLine) {
+  // Without the "dst" binding the shader's BINDING_dst is undeclared.
+  KernelDecl d("bench/copy.comp");
+  d.buffer("src").define("HAZE_SOMETHING").push(4);
+  std::string msg = error_of([&] { Kernel k(ctx(), d); });
+  EXPECT_TRUE(contains(msg, "shader bench/copy.comp [SOMETHING]: bench/copy.comp:")) << msg;
+  EXPECT_TRUE(contains(msg, "BINDING_dst")) << msg;
+  EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
+  msg = error_of([&] { Kernel k(ctx(), KernelDecl("no/such.comp")); });
+  EXPECT_TRUE(contains(msg, "no such shader source 'no/such.comp'")) << msg;
+  msg = error_of([&] { KernelDecl("x.comp").buffer("not a name"); });
+  EXPECT_TRUE(contains(msg, "binding 'not a name' is not an identifier")) << msg;
+}
+
+TEST_F(Gpu, PixelLayersInterleaveOnTheHost) {
+  const uint64_t pixels = 5;
+  PixelLayers L(ctx(), "test layers", "test", pixels, {"layer_a", "layer_b"});
+  EXPECT_EQ(L.stride(), 8u);
+  std::vector<float> host(pixels * 8);
+  for (size_t i = 0; i < host.size(); ++i) host[i] = float(i);
+  L.upload(host);
+  // Layer b holds floats 4..7 of every pixel.
+  std::vector<float> b = L[1].download_vector<float>();
+  for (size_t p = 0; p < pixels; ++p)
+    for (size_t c = 0; c < 4; ++c) EXPECT_EQ(b[p * 4 + c], float(p * 8 + 4 + c));
+  EXPECT_EQ(L.download(), host);
+  KernelDecl d("bench/copy.comp");
+  L.declare(d);
+  ASSERT_EQ(d.bindings().size(), 2u);
+  EXPECT_EQ(d.bindings()[1].name, "layer_b");
+  EXPECT_EQ(d.bindings()[1].min_bytes, pixels * 16);
+}
+
 }  // namespace
 }  // namespace haze::gpu
