@@ -58,9 +58,7 @@ class CopyKernel {
     src_.fill_zero();
     bindings_.set("src", src_).set("dst", dst_);
   }
-  void record(VkCommandBuffer cmd) const {
-    kernel_.dispatch(cmd, bindings_, &count_, kernel_.groups_1d(count_));
-  }
+  void record(VkCommandBuffer cmd) const { kernel_.dispatch_1d(cmd, bindings_, &count_, count_); }
 
  private:
   uint32_t count_;
@@ -171,8 +169,8 @@ BvhFigures bench_bvh(gpu::Context& ctx) {
   dev.bind(b);
   b.set("rays", ray_buf).set("hits", hit_buf);
   uint32_t count = uint32_t(n);
-  double gpu_ms = timed_median(
-      ctx, 3, [&](VkCommandBuffer cmd) { trace.dispatch(cmd, b, &count, trace.groups_1d(count)); });
+  double gpu_ms =
+      timed_median(ctx, 3, [&](VkCommandBuffer cmd) { trace.dispatch_1d(cmd, b, &count, count); });
   surfaces::EmbreeScene ref(geo.bvh.triangles);
   std::vector<double> cpu;
   for (int rep = 0; rep < 3; ++rep) {
@@ -319,10 +317,10 @@ void bench_passes(gpu::Context& ctx, const scene::Scene& s, int w, int h, int sp
   gpu::Bindings lb;
   lb.set("scene", r.scene_buffer()).set("result", out);
   r.device_media().bind(lb);
-  const auto lookup_and_copy = timed_medians(
-      ctx, 3,
-      {[&](VkCommandBuffer cmd) { lookup.dispatch(cmd, lb, &push, lookup.groups_1d(push.count)); },
-       [&](VkCommandBuffer cmd) { copy.record(cmd); }});
+  const auto lookup_and_copy =
+      timed_medians(ctx, 3,
+                    {[&](VkCommandBuffer cmd) { lookup.dispatch_1d(cmd, lb, &push, push.count); },
+                     [&](VkCommandBuffer cmd) { copy.record(cmd); }});
   const double t_lookup = lookup_and_copy[0], t_lookup_copy = lookup_and_copy[1];
   double lookups = double(push.count) * push.lookups;
   j["copy_ms"] = t_copy;

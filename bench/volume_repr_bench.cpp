@@ -107,7 +107,7 @@ void VolumeReprKernels::record(VkCommandBuffer cmd, const ReprGrid& g, bool dens
       .set("majorant", placeholder_);
   b.set("dense", g.dense).set("result", out);
   const gpu::Kernel& k = kernels_[dense][march];
-  k.dispatch(cmd, b, &push, k.groups_1d(count));
+  k.dispatch_1d(cmd, b, &push, count);
 }
 
 std::vector<float> VolumeReprKernels::run(const ReprGrid& g, bool dense, bool march, uint32_t count,

@@ -1,4 +1,4 @@
-// Parameters of one SVGF instance (DESIGN.md section 6), declared once: the scene's JSON
+// Parameters of one SVGF instance (docs/denoising.md), declared once: the scene's JSON
 // (`denoise.surface.phi_luminance`), --set, the docs and stats.json all come from reflect() below.
 #pragma once
 
@@ -43,7 +43,7 @@ struct SvgfParams {
   float taa_gamma = 1.f;
 };
 
-// The volume instance's starting parameters (DESIGN.md section 6 table).
+// The volume instance's starting parameters (docs/denoising.md, the table of starting parameters).
 inline SvgfParams volume_defaults() {
   SvgfParams p;
   p.accumulate = 0.902f;

@@ -1,4 +1,4 @@
-// FLIP image difference (DESIGN.md section 7), reimplemented from its papers:
+// FLIP image difference (docs/metrics.md), reimplemented from its papers:
 //   LDR-FLIP: Andersson, Nilsson, Akenine-Möller, Oskarsson, Åström, Fairchild, "FLIP: A Difference
 //             Evaluator for Alternating Images", HPG 2020.
 //   HDR-FLIP: Andersson, Nilsson, Shirley, Akenine-Möller, "Visualizing Errors in Rendered High Dynamic

@@ -1,4 +1,4 @@
-// Error metrics against a reference (DESIGN.md section 7), for `haze compare`, `haze bench` and sweeps.
+// Error metrics against a reference (docs/metrics.md), for `haze compare`, `haze bench` and sweeps.
 // Each metric averages over pixels and channels; the formula of each is in metrics.cpp, once.
 #pragma once
 

@@ -14,6 +14,7 @@
 #include <mutex>
 
 #include "eval/metrics.hpp"
+#include "gpu/hash.hpp"
 #include "render/output.hpp"
 #include "render/run.hpp"
 #include "scene/animation.hpp"
@@ -45,16 +46,6 @@ class FileLock {
   int fd_ = -1;
 };
 
-// FNV-1a 64, continued from h over `n` bytes.
-uint64_t fnv1a(uint64_t h, const char* bytes, size_t n) {
-  for (size_t i = 0; i < n; ++i) {
-    h ^= uint8_t(bytes[i]);
-    h *= 1099511628211ull;
-  }
-  return h;
-}
-constexpr uint64_t kFnvBasis = 1469598103934665603ull;
-
 // Content hash of a file, remembered by path, size and modification time: a sweep asks for the same
 // (possibly large) .vdb at every run.
 std::string file_hash(const std::string& path) {
@@ -71,11 +62,11 @@ std::string file_hash(const std::string& path) {
   std::ifstream f(path, std::ios::binary);
   if (!f)
     throw render::Error(fmt::format("cannot read {} for the reference key; check that it exists", path));
-  uint64_t h = kFnvBasis;
+  uint64_t h = gpu::kFnv64Basis;
   std::vector<char> buf(1 << 20);
   while (f) {
     f.read(buf.data(), std::streamsize(buf.size()));
-    h = fnv1a(h, buf.data(), size_t(f.gcount()));
+    h = gpu::fnv1a64(h, buf.data(), size_t(f.gcount()));
   }
   std::string hash = fmt::format("{:016x}", h);
   known[path] = {stamp, hash};
@@ -85,7 +76,7 @@ std::string file_hash(const std::string& path) {
 }  // namespace
 
 std::string hash_key(std::string_view bytes) {
-  return fmt::format("{:016x}", fnv1a(kFnvBasis, bytes.data(), bytes.size()));
+  return fmt::format("{:016x}", gpu::fnv1a64(gpu::kFnv64Basis, bytes.data(), bytes.size()));
 }
 
 json ReferenceOptions::to_json() const {

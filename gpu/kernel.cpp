@@ -127,6 +127,15 @@ const Resource* Bindings::find(const std::string& name) const {
   return it == resources_.end() ? nullptr : &it->second;
 }
 
+void require_strided(const Buffer& b, uint64_t items, uint32_t stride, uint32_t offset, uint32_t n,
+                     const std::string& who, const char* what) {
+  if (items == 0) return;
+  if (stride < offset + n || b.size() < ((items - 1) * stride + offset + n) * 4)
+    throw Error(
+        fmt::format("{}: {} buffer '{}' ({} bytes) does not hold {} records of {} floats with {} at {}", who,
+                    what, b.name(), b.size(), items, stride, n, offset));
+}
+
 const ComputePipeline& KernelCache::get(const KernelDecl& decl, double* setup_ms) {
   if (setup_ms) *setup_ms = 0;
   const std::string key = decl.pipeline_key();
@@ -166,7 +175,7 @@ void KernelCache::clear() {
   pipelines_.clear();
 }
 
-Kernel::Kernel(Context& ctx, KernelDecl decl) : decl_(std::move(decl)) {
+Kernel::Kernel(Context& ctx, KernelDecl decl) : decl_(std::move(decl)), ctx_(&ctx) {
   pipeline_ = &ctx.kernels().get(decl_, &setup_ms_);
 }
 
@@ -207,8 +216,10 @@ std::pair<uint32_t, uint32_t> Kernel::groups_2d(uint32_t width, uint32_t height)
   return {div_up(width, l[0]), div_up(height, l[1])};
 }
 
-uint32_t Kernel::groups_1d(uint64_t n) const {
-  return div_up(n, pipeline().local_size()[0]);
+void Kernel::dispatch_1d(VkCommandBuffer cmd, const Bindings& b, const void* push, uint64_t n) const {
+  const uint64_t groups = std::max<uint64_t>(div_up(n, pipeline().local_size()[0]), 1);
+  const uint64_t gx = std::min<uint64_t>(groups, ctx_->limits().maxComputeWorkGroupCount[0]);
+  dispatch(cmd, b, push, uint32_t(gx), uint32_t((groups + gx - 1) / gx));
 }
 
 }  // namespace haze::gpu

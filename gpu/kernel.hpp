@@ -85,6 +85,11 @@ class Bindings {
   std::map<std::string, Resource, std::less<>> resources_;
 };
 
+// Throws an Error naming `who` and `what` unless `b` holds `items` records of `stride` floats with `n`
+// floats at `offset` in each (a layer read with a stride and offset, as push constants describe it).
+void require_strided(const Buffer& b, uint64_t items, uint32_t stride, uint32_t offset, uint32_t n,
+                     const std::string& who, const char* what);
+
 // A compiled, created kernel: its declaration and the context's pipeline for it. Cheap to copy.
 class Kernel {
  public:
@@ -105,10 +110,14 @@ class Kernel {
   double setup_ms() const { return setup_ms_; }
   // Groups covering a width x height image with the kernel's workgroup size.
   std::pair<uint32_t, uint32_t> groups_2d(uint32_t width, uint32_t height) const;
-  uint32_t groups_1d(uint64_t n) const;
+  // Dispatches one invocation per item of [0, n) (and a few more), the groups spread over x and y so that
+  // no dimension exceeds the device's limit; the shader indexes with invocation_index()
+  // (shaders/common/dispatch.glsl) and returns for indices >= n.
+  void dispatch_1d(VkCommandBuffer cmd, const Bindings& b, const void* push, uint64_t n) const;
 
  private:
   KernelDecl decl_{""};
+  Context* ctx_ = nullptr;
   const ComputePipeline* pipeline_ = nullptr;
   double setup_ms_ = 0;
 };

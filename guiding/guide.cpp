@@ -67,7 +67,7 @@ void Guide::start_frame(VkCommandBuffer cmd, gpu::Timer* timer, const gpu::Buffe
     const uint32_t states = grid_.x * grid_.y * uint32_t(params_.states);
     gpu::Bindings b;
     b.set("scene", scene).set("motion", *motion).set("prev_states", prev_states_).set("states", states_);
-    reproject_.dispatch(cmd, b, nullptr, reproject_.groups_1d(states));
+    reproject_.dispatch_1d(cmd, b, nullptr, states);
     if (timer) timer->end(cmd);
   }
   gpu::compute_barrier(cmd);

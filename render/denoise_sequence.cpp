@@ -176,7 +176,7 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
       timer.begin(cmd, "tonemap");
       gpu::Bindings b;
       b.set("surface", svgf->output()).set("volume", volume).set("ldr", ldr);
-      tonemap.dispatch(cmd, b, &tp, tonemap.groups_1d(tp.pixels));
+      tonemap.dispatch_1d(cmd, b, &tp, tp.pixels);
       timer.end(cmd);
       gpu::compute_barrier(cmd);
       gbuf.copy_to(cmd, prev);

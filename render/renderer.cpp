@@ -293,7 +293,7 @@ Image Renderer::resolve() {
   ctx_.submit_and_wait([&](VkCommandBuffer cmd) {
     timer_->reset(cmd);
     timer_->begin(cmd, "resolve");
-    resolve_.dispatch(cmd, frame_bindings(), &push, resolve_.groups_1d(pixels));
+    resolve_.dispatch_1d(cmd, frame_bindings(), &push, pixels);
     timer_->end(cmd);
     if (!svgf_surface_ && !svgf_volume_) return;
     gpu::compute_barrier(cmd);
@@ -324,7 +324,7 @@ Image Renderer::resolve() {
     b.set("surface", svgf_surface_ ? svgf_surface_->output() : surf);
     b.set("volume", svgf_volume_ ? svgf_volume_->output() : vol);
     b.set("ldr", ldr_);
-    tonemap_.dispatch(cmd, b, &tp, tonemap_.groups_1d(pixels));
+    tonemap_.dispatch_1d(cmd, b, &tp, pixels);
     timer_->end(cmd);
   });
   record_times();

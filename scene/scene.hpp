@@ -362,7 +362,7 @@ void reflect(V& v, Scene& s) {
   v.field("lights", s.lights, "light sources");
   v.field("render", s.render, "render settings");
   v.field("denoise", s.denoise, "the SVGF denoiser instances");
-  v.field("guiding", s.guiding, "distance guiding along camera rays (DESIGN.md section 3)");
+  v.field("guiding", s.guiding, "distance guiding along camera rays (docs/guiding.md)");
   v.field("animation", s.animation, "keyframed tracks; frames of a VDB sequence come from media[].file");
 }
 

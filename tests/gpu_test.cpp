@@ -752,7 +752,7 @@ std::vector<float> run_copy(Context& c, const Kernel& k, const Buffer& src, cons
                             uint32_t count) {
   Bindings b;
   b.set("src", src).set("dst", dst);
-  c.submit_and_wait([&](VkCommandBuffer cmd) { k.dispatch(cmd, b, &count, k.groups_1d(count)); });
+  c.submit_and_wait([&](VkCommandBuffer cmd) { k.dispatch_1d(cmd, b, &count, count); });
   return dst.download_vector<float>();
 }
 

@@ -1,4 +1,4 @@
-// Numerical stability at the extremes of every valid input (DESIGN.md section 9): densities from 1e-6 to
+// Numerical stability at the extremes of every valid input (docs/rendering.md, numerical stability): densities from 1e-6 to
 // 1e6, albedo 0 and 1, g at +-1, voxel sizes from 1e-4 to 1e4, emitters and lights up to 1e8, 1x1 images,
 // cameras very far and very near. Every layer, both denoisers, the volume motion and the guide states must
 // stay finite, and every render must end (ctest's timeout catches a hang). Guiding and both denoisers are on,

@@ -92,7 +92,7 @@ std::vector<GpuRayHit> trace(const Bvh& bvh, const std::vector<GpuRay>& rays, bo
   c.submit_and_wait([&](VkCommandBuffer cmd) {
     timer.reset(cmd);
     timer.begin(cmd, "trace");
-    k.dispatch(cmd, b, &count, k.groups_1d(count));
+    k.dispatch_1d(cmd, b, &count, count);
     timer.end(cmd);
   });
   if (gpu_ms) *gpu_ms = timer.read_ms().at(0).second;

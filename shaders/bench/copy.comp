@@ -1,6 +1,8 @@
 #version 460
+#extension GL_GOOGLE_include_directive : require
 // The yardstick for pass timings: a plain copy of the same number of floats a pass reads.
 layout(local_size_x = 64) in;
+#include "common/dispatch.glsl"
 layout(std430, binding = BINDING_src) readonly buffer Src {
   vec4 src[];
 };
@@ -12,6 +14,6 @@ layout(push_constant) uniform Push {
 }
 pc;
 void main() {
-  uint i = gl_GlobalInvocationID.x;
+  uint i = invocation_index();
   if (i < pc.count) dst[i] = src[i];
 }

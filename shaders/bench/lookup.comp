@@ -4,6 +4,7 @@
 #extension GL_GOOGLE_include_directive : require
 #extension GL_EXT_control_flow_attributes : require
 layout(local_size_x = 64) in;
+#include "common/dispatch.glsl"
 #define HAZE_HETERO 1
 #include "common/color.glsl"
 #include "common/compat.glsl"
@@ -21,7 +22,7 @@ pc;
 #include "volume/medium.glsl"
 
 void main() {
-  uint i = gl_GlobalInvocationID.x;
+  uint i = invocation_index();
   if (i >= pc.count) return;
   uint rng = rng_init(7u, i, 0u);
   float sum = 0.0f;

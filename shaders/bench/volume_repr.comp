@@ -10,6 +10,7 @@
 #extension GL_GOOGLE_include_directive : require
 #extension GL_EXT_control_flow_attributes : require
 layout(local_size_x = 64) in;
+#include "common/dispatch.glsl"
 layout(constant_id = 0) const uint MARCH = 0u;
 #define HAZE_HETERO 1
 #include "common/color.glsl"
@@ -65,7 +66,7 @@ vec3 domain_point(INOUT(uint) rng) {
 }
 
 void main() {
-  uint i = gl_GlobalInvocationID.x;
+  uint i = invocation_index();
   if (i >= pc.count) return;
   uint rng = rng_init(pc.seed, i, 0u);
   vec3 a = vec3(0.0f), b = vec3(0.0f);

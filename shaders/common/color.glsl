@@ -3,7 +3,7 @@
 #define HAZE_COLOR_GLSL
 #include "common/compat.glsl"
 
-// Rec.709 / sRGB-primaries luminance (DESIGN.md section 5; the reference used Rec.601).
+// Rec.709 / sRGB-primaries luminance (docs/rendering.md, conventions; the seed's reference used Rec.601).
 HAZE_INLINE float luminance(vec3 c) {
   return dot(c, vec3(0.2126f, 0.7152f, 0.0722f));
 }

@@ -4,8 +4,8 @@
 // is an SVGF instance's output (half rgb + sigma per pixel) or floats with a stride and offset per pixel.
 #extension GL_GOOGLE_include_directive : require
 layout(local_size_x = 64) in;
-
 #include "common/color.glsl"
+#include "common/dispatch.glsl"
 
 layout(constant_id = 0) const uint SURFACE_HALF = 1u;  // 1: the surface signal is an SVGF output
 layout(constant_id = 1) const uint VOLUME_HALF = 0u;   // 1: the volume signal is an SVGF output
@@ -38,7 +38,7 @@ vec3 float_rgb(uint a, uint b, uint c) {
 }
 
 void main() {
-  uint p = gl_GlobalInvocationID.x;
+  uint p = invocation_index();
   if (p >= pc.pixels) return;
   vec3 s, v;
   if (SURFACE_HALF != 0u) {

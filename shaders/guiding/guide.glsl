@@ -1,4 +1,4 @@
-// Distance-guiding states and the Gaussian mixture they define (DESIGN.md section 3, after Alber, Hanika
+// Distance-guiding states and the Gaussian mixture they define (docs/guiding.md, after Alber, Hanika
 // and Dachsbacher 2025). Pure functions: the trace pass, the temporal reuse pass and the CPU tests share
 // them.
 //

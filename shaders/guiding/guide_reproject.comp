@@ -5,8 +5,8 @@
 // outside the previous grid start empty.
 #extension GL_GOOGLE_include_directive : require
 layout(local_size_x = 64) in;
-
 #include "common/compat.glsl"
+#include "common/dispatch.glsl"
 #include "guiding/guide.glsl"
 #include "volume/gpu_scene.glsl"
 
@@ -22,7 +22,7 @@ layout(std430, binding = BINDING_states) writeonly buffer States {
 
 void main() {
   uvec4 G = scene.guide_grid;
-  uint i = gl_GlobalInvocationID.x;
+  uint i = invocation_index();
   if (i >= G.x * G.y * G.z) return;
   uint v = i / G.z, k = i % G.z;
   float S = scene.guide_learn.x;

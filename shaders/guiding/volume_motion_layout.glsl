@@ -1,4 +1,4 @@
-// Volume motion vectors (DESIGN.md section 3), shared with the host (guiding/volume_motion.hpp). Only
+// Volume motion vectors (docs/guiding.md), shared with the host (guiding/volume_motion.hpp). Only
 // vec4/mat4 members: std430 and C++ then have the same layout.
 #ifndef HAZE_VOLUME_MOTION_LAYOUT_GLSL
 #define HAZE_VOLUME_MOTION_LAYOUT_GLSL

@@ -4,6 +4,7 @@
 #extension GL_GOOGLE_include_directive : require
 
 layout(local_size_x = 64) in;
+#include "common/dispatch.glsl"
 layout(constant_id = 0) const uint ANY_HIT = 0u;
 
 #include "surfaces/bvh_layout.glsl"
@@ -23,7 +24,7 @@ pc;
 #include "surfaces/bvh.glsl"
 
 void main() {
-  uint i = gl_GlobalInvocationID.x;
+  uint i = invocation_index();
   if (i >= pc.count) return;
   GpuRay ray = rays[i];
   GpuRayHit out_hit;

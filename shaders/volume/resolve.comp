@@ -3,9 +3,9 @@
 // depth, and the tonemapped 8-bit preview.
 #extension GL_GOOGLE_include_directive : require
 layout(local_size_x = 64) in;
-
 #include "common/color.glsl"
 #include "common/compat.glsl"
+#include "common/dispatch.glsl"
 #include "volume/gpu_scene.glsl"
 
 PIXEL_LAYER_IN(acc_l);
@@ -34,7 +34,7 @@ layout(push_constant) uniform Push {
 pc;
 
 void main() {
-  uint p = gl_GlobalInvocationID.x;
+  uint p = invocation_index();
   if (p >= pc.pixels) return;
   float n = float(max(pc.samples, 1u));
   vec4 l = acc_l[p], l2 = acc_l2[p], vol = acc_vol[p], surf = acc_surf[p], vp = acc_vp[p];
