@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <glm/glm.hpp>
 #include <memory>
 #include <random>
 
@@ -837,6 +838,29 @@ TEST_F(Gpu, KernelCompileErrorsNameShaderPermutationAndLine) {
   EXPECT_TRUE(contains(msg, "no such shader source 'no/such.comp'")) << msg;
   msg = error_of([&] { KernelDecl("x.comp").buffer("not a name"); });
   EXPECT_TRUE(contains(msg, "binding 'not a name' is not an identifier")) << msg;
+}
+
+// More items than maxComputeWorkGroupCount[0] groups of 64 reach along x (a 3840x2160 frame needs 129600):
+// dispatch_1d spreads the groups over y, and every item, the last included, is processed once.
+TEST_F(Gpu, Dispatch1dCoversMoreGroupsThanTheXLimit) {
+  const uint64_t limit = ctx().limits().maxComputeWorkGroupCount[0];
+  const uint32_t n = uint32_t(std::min<uint64_t>((limit + 2) * 64 + 5, 1u << 24));
+  ASSERT_GT(uint64_t(n), limit * 64) << "the device allows more groups than this test can cover";
+  std::vector<glm::vec4> v(n);
+  for (uint32_t i = 0; i < n; ++i) v[i] = glm::vec4(float(i), float(i % 7), 1.f, -float(i));
+  Buffer src(ctx(), "dispatch_1d src", "test", uint64_t(n) * 16),
+      dst(ctx(), "dispatch_1d dst", "test", uint64_t(n) * 16);
+  src.upload(v);
+  dst.fill_zero();
+  Kernel k(ctx(), copy_decl(n));
+  Bindings b;
+  b.set("src", src).set("dst", dst);
+  ctx().submit_and_wait([&](VkCommandBuffer cmd) { k.dispatch_1d(cmd, b, &n, n); });
+  std::vector<glm::vec4> got = dst.download_vector<glm::vec4>();
+  size_t wrong = 0;
+  for (uint32_t i = 0; i < n; ++i) wrong += got[i] != v[i];
+  EXPECT_EQ(wrong, 0u);
+  EXPECT_EQ(got.back(), v.back());
 }
 
 TEST_F(Gpu, PixelLayersInterleaveOnTheHost) {

@@ -16,7 +16,7 @@ set(GPU_TEST_SPV ${CMAKE_CURRENT_BINARY_DIR}/gpu_test_add.spv)
 set(GPU_TEST_IMAGE_SPV ${CMAKE_CURRENT_BINARY_DIR}/gpu_test_image.spv)
 
 add_executable(gpu_test ${CMAKE_CURRENT_LIST_DIR}/gpu_test.cpp ${GPU_TEST_SPVS})
-target_link_libraries(gpu_test PRIVATE haze_gpu GTest::gtest_main)
+target_link_libraries(gpu_test PRIVATE haze_gpu glm::glm GTest::gtest_main)
 target_compile_definitions(gpu_test PRIVATE GPU_TEST_SPV="${GPU_TEST_SPV}"
                                             GPU_TEST_IMAGE_SPV="${GPU_TEST_IMAGE_SPV}")
 
