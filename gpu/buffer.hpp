@@ -73,6 +73,20 @@ class Buffer {
   std::string name_, category_, format_;
 };
 
+// Keeps `b` holding `data`: uploads it, reallocating only when the size changes (the ledger entry then
+// changes too); empties `b` when `wanted` is false, so that an absent feature holds no memory.
+template <class T>
+void keep_uploaded(Context& ctx, Buffer& b, bool wanted, const std::string& name, const std::string& category,
+                   const std::vector<T>& data, const std::string& format) {
+  if (!wanted) {
+    b = Buffer();
+    return;
+  }
+  const uint64_t bytes = data.size() * sizeof(T);
+  if (!b.valid() || b.size() != bytes) b = Buffer(ctx, name, category, bytes, format);
+  b.upload(data);
+}
+
 // Records a buffer-to-buffer copy (bytes = UINT64_MAX: all of src); ranges are checked.
 void copy_buffer(VkCommandBuffer cmd, const Buffer& src, Buffer& dst, uint64_t bytes = UINT64_MAX,
                  uint64_t src_offset = 0, uint64_t dst_offset = 0);

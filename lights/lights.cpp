@@ -56,14 +56,7 @@ void Lights::update(const scene::Lights& l, const std::vector<Emitter>& emitters
   list_ = light_list(l, emitters);
   local_ = l.points.size() + l.spots.size();
   area_ = !emitters.empty();
-  if (list_.empty()) {
-    buffer_ = gpu::Buffer();
-    return;
-  }
-  const uint64_t bytes = list_.size() * sizeof(glsl::GpuLight);
-  if (!buffer_.valid() || buffer_.size() != bytes)
-    buffer_ = gpu::Buffer(ctx_, "lights", "scene data", bytes, "GpuLight");
-  buffer_.upload(list_);
+  gpu::keep_uploaded(ctx_, buffer_, !list_.empty(), "lights", "scene data", list_, "GpuLight");
 }
 
 void Lights::declare(gpu::KernelDecl& k) const {

@@ -5,29 +5,15 @@
 #include <algorithm>
 
 namespace haze::surfaces {
-namespace {
-
-template <class T>
-void keep(gpu::Context& ctx, gpu::Buffer& b, bool wanted, const char* name, const std::vector<T>& data,
-          const std::string& format) {
-  if (!wanted) {
-    b = gpu::Buffer();
-    return;
-  }
-  const uint64_t bytes = data.size() * sizeof(T);
-  if (!b.valid() || b.size() != bytes) b = gpu::Buffer(ctx, name, "scene data", bytes, format);
-  b.upload(data);
-}
-
-}  // namespace
 
 void DeviceSurfaces::update(const scene::Scene& s, const scene::Scene& p) {
   geometry_ = build_geometry(s, &geometry_);
   textured_ = std::any_of(s.surfaces.begin(), s.surfaces.end(),
                           [](const scene::Surface& m) { return !m.albedo_texture.empty(); });
   const bool on = !s.surfaces.empty();
-  keep(ctx_, bvh_.nodes, on, "bvh nodes", geometry_.bvh.nodes, "GpuBvhNode");
-  keep(ctx_, bvh_.triangles, on, "bvh triangles", geometry_.bvh.triangles, "GpuTriangle");
+  gpu::keep_uploaded(ctx_, bvh_.nodes, on, "bvh nodes", "scene data", geometry_.bvh.nodes, "GpuBvhNode");
+  gpu::keep_uploaded(ctx_, bvh_.triangles, on, "bvh triangles", "scene data", geometry_.bvh.triangles,
+                     "GpuTriangle");
   std::vector<glm::uvec4> placement;
   std::vector<glm::uvec2> texels = packed_texels(geometry_, &placement);
   std::vector<glsl::GpuInstance> inst;
@@ -41,10 +27,11 @@ void DeviceSurfaces::update(const scene::Scene& s, const scene::Scene& p) {
     g.world_to_prev_world = glm::mat4(glm::dmat4(before) * glm::inverse(glm::dmat4(now)));
     inst.push_back(g);
   }
-  keep(ctx_, instances_, on, "instances", inst, "GpuInstance");
-  keep(ctx_, uvs_, on && textured_, "triangle uvs", geometry_.triangle_uvs, "GpuTriangleUv");
-  keep(ctx_, texels_, on && textured_, "albedo textures", texels,
-       fmt::format("RGB unorm16, {} textures", placement.size()));
+  gpu::keep_uploaded(ctx_, instances_, on, "instances", "scene data", inst, "GpuInstance");
+  gpu::keep_uploaded(ctx_, uvs_, on && textured_, "triangle uvs", "scene data", geometry_.triangle_uvs,
+                     "GpuTriangleUv");
+  gpu::keep_uploaded(ctx_, texels_, on && textured_, "albedo textures", "scene data", texels,
+                     fmt::format("RGB unorm16, {} textures", placement.size()));
 }
 
 void DeviceSurfaces::declare(gpu::KernelDecl& k) const {

@@ -145,23 +145,6 @@ std::vector<glsl::MediumMotion> media_motion(const scene::Scene& s, const scene:
   return moved;
 }
 
-namespace {
-
-// Uploads `data` into `b`, reallocating only when the size changes; drops `b` when `wanted` is false.
-template <class T>
-void keep(gpu::Context& ctx, gpu::Buffer& b, bool wanted, const char* name, const std::vector<T>& data,
-          const std::string& format) {
-  if (!wanted) {
-    b = gpu::Buffer();
-    return;
-  }
-  const uint64_t bytes = data.size() * sizeof(T);
-  if (!b.valid() || b.size() != bytes) b = gpu::Buffer(ctx, name, "scene data", bytes, format);
-  b.upload(data);
-}
-
-}  // namespace
-
 void Media::update(const scene::Scene& s, const scene::Scene& prev) {
   host_ = build_media(s, &host_);
   hetero_ = !s.media.empty();
@@ -169,14 +152,14 @@ void Media::update(const scene::Scene& s, const scene::Scene& prev) {
   haze_params_ = s.haze;
   emission_ = std::any_of(s.media.begin(), s.media.end(),
                           [](const scene::Medium& m) { return m.emission.mode != "none"; });
-  keep(ctx_, nanovdb_, hetero_, "nanovdb grids", host_.nanovdb, "NanoVDB");
-  keep(ctx_, table_, hetero_, "media", host_.media, "GpuMedium");
+  gpu::keep_uploaded(ctx_, nanovdb_, hetero_, "nanovdb grids", "scene data", host_.nanovdb, "NanoVDB");
+  gpu::keep_uploaded(ctx_, table_, hetero_, "media", "scene data", host_.media, "GpuMedium");
   const auto& maj = host_.majorant;
-  keep(ctx_, majorant_, hetero_, "majorant grid", maj.sigma_max,
-       fmt::format("f32 {}x{}x{}", maj.res.x, maj.res.y, maj.res.z));
+  gpu::keep_uploaded(ctx_, majorant_, hetero_, "majorant grid", "scene data", maj.sigma_max,
+                     fmt::format("f32 {}x{}x{}", maj.res.x, maj.res.y, maj.res.z));
   std::vector<glsl::MediumMotion> moved = media_motion(s, prev, host_);
   moving_ = uint32_t(moved.size());
-  keep(ctx_, motion_, !moved.empty(), "media motion", moved, "MediumMotion");
+  gpu::keep_uploaded(ctx_, motion_, !moved.empty(), "media motion", "scene data", moved, "MediumMotion");
 }
 
 void Media::declare(gpu::KernelDecl& k) const {
