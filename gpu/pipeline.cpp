@@ -233,10 +233,6 @@ void compute_barrier(VkCommandBuffer cmd) {
   vkCmdPipelineBarrier(cmd, stages, stages, 0, 1, &b, 0, nullptr, 0, nullptr);
 }
 
-std::string variant_spv(const std::string& spv_dir, const std::string& source, uint32_t mask) {
-  return fmt::format("{}/{}.{}.spv", spv_dir, source, mask);
-}
-
 ComputePipeline::ComputePipeline(Context& ctx, const std::string& spv_path, uint32_t num_buffers,
                                  uint32_t push_bytes, const std::vector<uint32_t>& spec_constants)
     : ComputePipeline(ctx, spv_path, buffer_slots(spv_path, num_buffers), push_bytes, spec_constants) {}

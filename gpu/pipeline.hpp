@@ -32,8 +32,6 @@ inline uint32_t div_up(uint64_t n, uint32_t local) {
   return static_cast<uint32_t>((n + local - 1) / local);
 }
 
-// Path of a variant built by haze_shader() (cmake/HazeShaders.cmake): "<spv_dir>/<source>.<mask>.spv".
-std::string variant_spv(const std::string& spv_dir, const std::string& source, uint32_t mask);
 
 // What a binding of descriptor set 0 holds: a storage buffer (gpu::Buffer) or a storage image (gpu::Image).
 enum class Slot { Buffer, Image };
