@@ -4,8 +4,11 @@
 #include <tiny_obj_loader.h>
 
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <limits>
+#include <sstream>
 #include <unordered_map>
 
 namespace haze::surfaces {
@@ -34,6 +37,66 @@ struct CornerHash {
     return size_t(h);
   }
 };
+
+// What tinyobjloader reads as 0 or skips without a word. A coordinate that is no number ("banana") and a
+// face with fewer than 3 corners (a bare "f") are errors naming the line; a number that is not finite in
+// float (nan, inf, 1e39) is recorded, so that its vertex becomes NaN and its triangles are dropped and
+// counted like any other non-finite vertex.
+struct ObjScan {
+  std::vector<size_t> bad_v, bad_vt, bad_vn;  // indices (in file order) of non-finite elements
+  size_t v = 0, vt = 0, vn = 0;               // elements seen
+};
+
+ObjScan scan_obj(const std::string& path, const std::string& text) {
+  ObjScan scan;
+  size_t line_no = 0, pos = 0;
+  while (pos < text.size()) {
+    size_t end = text.find('\n', pos);
+    if (end == std::string::npos) end = text.size();
+    std::string line = text.substr(pos, end - pos);
+    pos = end + 1;
+    ++line_no;
+    if (size_t hash = line.find('#'); hash != std::string::npos) line.resize(hash);
+    std::istringstream words(line);
+    std::string kind;
+    if (!(words >> kind)) continue;
+    if (kind == "f") {
+      int corners = 0;
+      for (std::string w; words >> w;) ++corners;
+      if (corners < 3)
+        throw Error(fmt::format(
+            "{}:{}: malformed OBJ: a face with fewer than 3 vertices ({}; fix or re-export the file)", path,
+            line_no, corners));
+      continue;
+    }
+    std::vector<size_t>* bad = kind == "v"    ? &scan.bad_v
+                               : kind == "vt" ? &scan.bad_vt
+                               : kind == "vn" ? &scan.bad_vn
+                                              : nullptr;
+    if (!bad) continue;
+    size_t& count = kind == "v" ? scan.v : kind == "vt" ? scan.vt : scan.vn;
+    bool finite_all = true;
+    for (std::string w; words >> w;) {
+      char* stop = nullptr;
+      const double x = std::strtod(w.c_str(), &stop);
+      if (stop == w.c_str() || *stop != '\0')
+        throw Error(fmt::format(
+            "{}:{}: malformed OBJ: '{}' in a '{}' line is not a number (fix or re-export the file)", path,
+            line_no, w, kind));
+      finite_all &= std::isfinite(x) && std::abs(x) <= double(std::numeric_limits<float>::max());
+    }
+    if (!finite_all) bad->push_back(count);
+    ++count;
+  }
+  return scan;
+}
+
+// Sets the elements `bad` of a flat array of `n`-float elements to NaN.
+void poison(std::vector<tinyobj::real_t>& flat, size_t n, const std::vector<size_t>& bad) {
+  for (size_t i : bad)
+    for (size_t k = 0; k < n && i * n + k < flat.size(); ++k)
+      flat[i * n + k] = std::numeric_limits<float>::quiet_NaN();
+}
 
 }  // namespace
 
@@ -79,8 +142,12 @@ Mesh load_obj(const std::string& path, MeshStats* stats) {
   if (!std::filesystem::exists(path, ec)) throw Error(fmt::format("{}: no such file (check the path)", path));
   if (!std::filesystem::is_regular_file(path, ec))
     throw Error(fmt::format("{}: not a regular file (give the path of an .obj file)", path));
-  std::ifstream in(path);
-  if (!in) throw Error(fmt::format("{}: cannot be opened (check its permissions)", path));
+  std::ifstream file(path, std::ios::binary);
+  if (!file) throw Error(fmt::format("{}: cannot be opened (check its permissions)", path));
+  std::stringstream text;
+  text << file.rdbuf();
+  const ObjScan scan = scan_obj(path, text.str());
+  std::istringstream in(text.str());
 
   tinyobj::attrib_t attrib;
   std::vector<tinyobj::shape_t> shapes;
@@ -93,6 +160,9 @@ Mesh load_obj(const std::string& path, MeshStats* stats) {
     throw Error(fmt::format(
         "{}: malformed OBJ: a face with fewer than 3 vertices (fix or re-export the file)", path));
 
+  poison(attrib.vertices, 3, scan.bad_v);
+  poison(attrib.texcoords, 2, scan.bad_vt);
+  poison(attrib.normals, 3, scan.bad_vn);
   const int nv = int(attrib.vertices.size() / 3), nt = int(attrib.texcoords.size() / 2),
             nn = int(attrib.normals.size() / 3);
   bool has_uv = true, has_normal = true;

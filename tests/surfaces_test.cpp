@@ -185,6 +185,13 @@ TEST(Mesh, ObjErrorsNameTheFileAndSayWhatToDo) {
       {"no_faces.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\n", "no triangles"},
       {"garbage.obj", "\x01\x02 this is not an OBJ file\n", "no triangles"},
       {"all_degenerate.obj", "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\nf 1 1 2\n", "no valid triangles"},
+      // tinyobjloader reads these as 0 or skips them without a word.
+      {"banana.obj", "v 0 0 0\nv 1 0 banana\nv 0 1 0\nf 1 2 3\n",
+       ":2: malformed OBJ: 'banana' in a 'v' line is not a number"},
+      {"banana_uv.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 x\nf 1 2 3\n",
+       ":4: malformed OBJ: 'x' in a 'vt' line"},
+      {"bare_f.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf\nf 1 2 3\n",
+       ":4: malformed OBJ: a face with fewer than 3 vertices (0"},
   };
   for (const Case& c : cases) {
     const std::string path = write_file(c.name, c.text);
@@ -217,16 +224,25 @@ TEST(Mesh, NonFiniteAndZeroAreaTrianglesAreDroppedAndCounted) {
   bad.triangles = {{0, 1, 3}};
   EXPECT_NE(error_of([&] { drop_bad_triangles(bad); }).find("refers to vertex 3 of 3"), std::string::npos);
 
-  // The same through an OBJ file: 1e39 overflows float to Inf, a repeated corner has zero area.
+  // The same through an OBJ file: 1e39 overflows float to Inf, nan and inf are not finite (tinyobjloader
+  // would read both as 0), a repeated corner has zero area.
   MeshStats os;
   Mesh o = load_obj(write_file("bad_tris.obj",
-                               "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1e39 0 0\n"
-                               "f 1 2 3\nf 1 2 4\nf 1 1 2\nf 3 2 1\n"),
+                               "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1e39 0 0\nv 0.5 0.5 inf\nv nan 0 1 # comment\n"
+                               "f 1 2 3\nf 1 2 4\nf 1 1 2\nf 3 2 1\nf 1 2 5\nf 6 1 2\n"),
                     &os);
   EXPECT_EQ(o.triangles.size(), 2u);
   EXPECT_EQ(os.triangles, 2u);
-  EXPECT_EQ(os.dropped_nonfinite, 1u);
+  EXPECT_EQ(os.dropped_nonfinite, 3u);
   EXPECT_EQ(os.dropped_degenerate, 1u);
+  // A non-finite uv drops its triangles too.
+  MeshStats us;
+  load_obj(write_file("bad_uv.obj",
+                      "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvt 0 0\nvt 1 0\nvt 0 inf\n"
+                      "f 1/1 2/2 3/1\nf 2/2 4/3 3/1\n"),
+           &us);
+  EXPECT_EQ(us.triangles, 1u);
+  EXPECT_EQ(us.dropped_nonfinite, 1u);
 }
 
 // ---------------------------------------------------------------------------------------------------------
