@@ -9,6 +9,8 @@
 #include <stb/stb_image_write.h>
 #include <unistd.h>
 
+#include <cerrno>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 
@@ -157,11 +159,30 @@ void write_exr(const std::string& path, const Image& img) {
   write_exr_channels(path, img.width, img.height, channels);
 }
 
+namespace {
+
+// Writes `bytes` to `path`, checking every write and the close (a full disk fails here, not silently).
+void write_bytes(const std::string& path, std::string_view bytes) {
+  std::ofstream f(path, std::ios::binary);
+  if (!f) throw std::runtime_error(std::strerror(errno));
+  f.write(bytes.data(), std::streamsize(bytes.size()));
+  f.flush();
+  if (!f) throw std::runtime_error(fmt::format("write failed: {}", std::strerror(errno)));
+  f.close();
+  if (!f) throw std::runtime_error(fmt::format("close failed: {}", std::strerror(errno)));
+}
+
+}  // namespace
+
 void write_png_rgba8(const std::string& path, int width, int height, const std::vector<uint32_t>& rgba) {
-  atomic_write(path, [&](const std::string& tmp) {
-    if (!stbi_write_png(tmp.c_str(), width, height, 4, rgba.data(), width * 4))
-      throw std::runtime_error("PNG encoder failed");
-  });
+  // Encoded in memory: stb's own file writer does not check its writes.
+  std::string png;
+  auto append = [](void* ctx, void* data, int size) {
+    static_cast<std::string*>(ctx)->append(static_cast<char*>(data), size_t(size));
+  };
+  if (!stbi_write_png_to_func(append, &png, width, height, 4, rgba.data(), width * 4))
+    throw Error(fmt::format("cannot write {}: the PNG encoder failed", path));
+  atomic_write(path, [&](const std::string& tmp) { write_bytes(tmp, png); });
 }
 
 void write_png(const std::string& path, const Image& img) {
@@ -169,12 +190,7 @@ void write_png(const std::string& path, const Image& img) {
 }
 
 void write_text(const std::string& path, const std::string& text) {
-  atomic_write(path, [&](const std::string& tmp) {
-    std::ofstream f(tmp, std::ios::binary);
-    f << text;
-    f.close();
-    if (!f) throw std::runtime_error("write failed");
-  });
+  atomic_write(path, [&](const std::string& tmp) { write_bytes(tmp, text); });
 }
 
 void write_json(const std::string& path, const nlohmann::json& j) {

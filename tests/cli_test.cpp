@@ -107,6 +107,45 @@ TEST_F(Cli, ShaderCacheCompilesOnceThenHits) {
   EXPECT_GE(shaders(dir / "d")["compiled"].get<int>(), 1);
 }
 
+// A full disk: every output fails loudly and the previous outputs stay as they were. The small filesystem is
+// a tmpfs in a private user and mount namespace (unshare -r -m: no root needed), gone when the script ends.
+TEST_F(Cli, FullDiskFailsLoudlyAndKeepsThePreviousOutputs) {
+  const std::string scene = small_scene(), fs_dir = (dir / "small").string(),
+                    saved = (dir / "saved").string();
+  fs::create_directories(fs_dir);
+  fs::create_directories(saved);
+  for (const char* outputs : {"png", "exr", "stats"}) {
+    const std::string file = std::string(outputs) == "png"   ? "frame_0000.png"
+                             : std::string(outputs) == "exr" ? "frame_0000.exr"
+                                                             : "stats.json";
+    const std::string script = fmt::format(
+        "set -e; mount -t tmpfs -o size=4m tmpfs {0}; "
+        "{1} render {2} --out {0}/out --set render.outputs={3} > {4}/first.log 2>&1; "
+        "cp {0}/out/{5} {4}/{5}; "
+        "dd if=/dev/zero of={0}/fill bs=4096 > /dev/null 2>&1 || true; "
+        "set +e; {1} render {2} --out {0}/out --set render.outputs={3} --set render.seed=7 > {4}/second.log "
+        "2>&1; "
+        "echo $? > {4}/rc; cmp -s {0}/out/{5} {4}/{5} && echo intact > {4}/intact; "
+        "ls -a {0}/out > {4}/listing; true",
+        fs_dir, HAZE_BIN, scene, outputs, saved, file);
+    ASSERT_EQ(std::system(fmt::format("unshare -r -m sh -c '{}'", script).c_str()), 0) << outputs;
+    auto read = [&](const char* name) {
+      std::ifstream f(fs::path(saved) / name);
+      std::stringstream ss;
+      ss << f.rdbuf();
+      return ss.str();
+    };
+    ASSERT_TRUE(fs::exists(fs::path(saved) / file))
+        << outputs << ": the first run failed: " << read("first.log");
+    EXPECT_NE(read("rc"), "0\n") << outputs << ": " << read("second.log");
+    Result r{1, read("second.log")};
+    expect_one_line_error(r, "No space left on device");
+    EXPECT_EQ(read("intact"), "intact\n") << outputs << ": the previous " << file << " changed";
+    EXPECT_EQ(read("listing").find(".tmp"), std::string::npos)
+        << outputs << ": a temporary is left: " << read("listing");
+  }
+}
+
 TEST_F(Cli, HelpParamsNeedsNoScene) {
   auto r = run("render --help-params");
   ASSERT_EQ(r.code, 0) << r.out;
