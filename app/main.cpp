@@ -79,11 +79,12 @@ scene::Scene load_scene(const std::string& path, std::vector<std::string> overri
   return scene::load(path, overrides);
 }
 
-int run_render(const std::string& scene_path, const std::string& out, int spp, const std::string& size,
-               const std::string& frames, const std::vector<std::string>& sets,
+int run_render(const std::string& scene_path, const std::string& out, const std::string& spp,
+               const std::string& size, const std::string& frames, const std::vector<std::string>& sets,
                const gpu::ContextOptions& co) {
   std::vector<std::string> overrides = sets;
-  if (spp > 0) overrides.push_back(fmt::format("render.spp={}", spp));
+  // Read as the scene file reads it (1e3 is 1000), with its range check and message.
+  if (!spp.empty()) overrides.push_back(fmt::format("render.spp={}", spp));
   scene::Scene s = load_scene(scene_path, overrides, size, frames);
   auto [first, last] = scene::frame_range(s);
   render::ensure_writable_dir(out);
@@ -216,7 +217,7 @@ int main(int argc, char** argv) {
 
   auto* render = app.add_subcommand("render", "render a scene to EXR, PNG and stats.json");
   std::string scene_path, out_dir;
-  int spp = 0;
+  std::string spp;
   std::string size;
   std::vector<std::string> sets;
   bool help_params = false;
@@ -224,7 +225,7 @@ int main(int argc, char** argv) {
   render->add_option("--out", out_dir, "output directory (required unless --help-params)");
   render->add_flag("--help-params", help_params,
                    "list every scene key (type, default, range, meaning) and exit; needs no scene");
-  render->add_option("--spp", spp, "samples per pixel (overrides render.spp)")->check(CLI::PositiveNumber);
+  render->add_option("--spp", spp, "samples per pixel (sets render.spp)");
   render->add_option("--size", size, "WIDTHxHEIGHT (overrides render.width/height)");
   render->add_option("--set", sets, "override any scene value: dotted.path=value (repeatable)");
   std::string frames;

@@ -129,8 +129,9 @@ std::string join_path(std::string_view path, std::string_view key) {
 void ReadContext::fail(std::string_view path, std::string_view what) const {
   std::string msg = fmt::format("{}: {}: {}", origin.empty() ? "<memory>" : origin,
                                 path.empty() ? "(top level)" : path, what);
-  // Name the --set that put the bad value there, if any did.
-  for (const auto& [p, assignment] : overrides) {
+  // Name the --set that put the bad value there, if any did: the last one to touch it.
+  for (auto it = overrides.rbegin(); it != overrides.rend(); ++it) {
+    const auto& [p, assignment] = *it;
     bool under = path.size() >= p.size() && path.compare(0, p.size(), p) == 0 &&
                  (path.size() == p.size() || path[p.size()] == '.' || path[p.size()] == '[');
     if (under) {
@@ -260,25 +261,44 @@ json write_vec3(const glm::vec3& v) {
   return json::array({write_float(v.x), write_float(v.y), write_float(v.z)});
 }
 
-bool split_path(std::string_view path, std::vector<std::string>& segs) {
-  // Accept the bracket form that error messages print, media[0].g, as well as media.0.g.
-  std::string dotted;
-  for (char ch : trim(path)) {
-    if (ch == '[')
-      dotted += '.';
-    else if (ch != ']')
-      dotted += ch;
-  }
+std::string split_path(std::string_view path, std::vector<std::string>& segs) {
+  // Keys joined by '.', each optionally followed by [index] groups: media.0.g, and the bracket form that
+  // error messages print, media[0].g. Anything else ("media[0.g", "media[0]].g") is refused, not guessed.
+  const std::string p = trim(path);
   segs.clear();
-  size_t start = 0;
-  while (true) {
-    size_t dot = dotted.find('.', start);
-    std::string seg = dotted.substr(start, dot == std::string::npos ? std::string::npos : dot - start);
-    if (seg.empty()) return false;
-    segs.push_back(seg);
-    if (dot == std::string::npos) return true;
-    start = dot + 1;
+  size_t i = 0;
+  bool need_key = true;  // at the start and after a '.'
+  while (i < p.size()) {
+    if (p[i] == '[') {
+      if (segs.empty()) return "an index [n] must follow a key";
+      size_t close = p.find(']', i);
+      const std::string index =
+          p.substr(i + 1, close == std::string::npos ? std::string::npos : close - i - 1);
+      if (close == std::string::npos || index.empty() || index.find_first_of("[.") != std::string::npos)
+        return "a '[' without its index and ']'";
+      segs.push_back(index);
+      i = close + 1;
+      if (i < p.size() && p[i] != '.' && p[i] != '[') return "a ']' must be followed by '.', '[' or the end";
+      need_key = false;
+      continue;
+    }
+    if (p[i] == ']') return "a ']' without its '['";
+    if (p[i] == '.') {
+      if (need_key) return "an empty part";
+      ++i;
+      need_key = true;
+      if (i == p.size()) return "an empty part";
+      continue;
+    }
+    size_t end = p.find_first_of(".[]", i);
+    if (end == std::string::npos) end = p.size();
+    if (!need_key) return "a key must follow a '.'";
+    segs.push_back(p.substr(i, end - i));
+    i = end;
+    need_key = false;
   }
+  if (segs.empty()) return "an empty part";
+  return "";
 }
 
 Override parse_assignment(std::string_view assignment, std::string_view origin, std::string& value) {
@@ -292,9 +312,9 @@ Override parse_assignment(std::string_view assignment, std::string_view origin, 
   }
   value = trim(assignment.substr(eq + 1));
   std::string path = trim(assignment.substr(0, eq));
-  if (!split_path(path, o.segs)) {
-    throw Error(fmt::format("{}: --set {}: the path \"{}\" has an empty part; write it as a.b.c", o.origin,
-                            assignment, path));
+  if (std::string why = split_path(path, o.segs); !why.empty()) {
+    throw Error(fmt::format("{}: --set {}: the path \"{}\" has {}; write it as a.b.c or a[0].b", o.origin,
+                            assignment, path, why));
   }
   return o;
 }

@@ -392,7 +392,8 @@ struct Override {
 };
 
 // Splits "a.b[2].c" (or "a.b.2.c") into "a", "b", "2", "c"; false if a part is empty.
-bool split_path(std::string_view path, std::vector<std::string>& segs);
+// Splits "a.b[0].c" (or "a.b.0.c") into keys; "" on success, else what is wrong ("an empty part").
+std::string split_path(std::string_view path, std::vector<std::string>& segs);
 // Splits "a.b[2].c=v" into segments and value; throws on a malformed assignment.
 Override parse_assignment(std::string_view assignment, std::string_view origin, std::string& value);
 [[noreturn]] void override_fail(const Override& o, std::string_view path, std::string_view what);

@@ -174,9 +174,10 @@ std::vector<Compiled> compile(Scene& s, const ReadContext& ctx) {
     validate(track, Where(ctx, at));
     const std::string path_at = at + ".path";
     Segments segs;
-    if (!reflection::detail::split_path(track.path, segs)) {
+    if (std::string why = reflection::detail::split_path(track.path, segs); !why.empty()) {
       ctx.fail(path_at,
-               fmt::format("\"{}\" has an empty part; write it as a.b.c, e.g. camera.position", track.path));
+               fmt::format("\"{}\" has {}; write it as a.b.c, e.g. camera.position or media[0].albedo",
+                           track.path, why));
     }
     if (segs[0] == "animation") ctx.fail(path_at, "the animation cannot animate itself");
     Compiled c;

@@ -223,6 +223,20 @@ TEST_F(Cli, ZeroSizeImage) {
                         "render.width");
 }
 
+// --spp is read as the scene file reads render.spp: 1e3 is a number, 0 is out of range (one line, no
+// 309-digit range), a word is no number.
+TEST_F(Cli, SppReadsLikeTheSceneFile) {
+  const std::string scene = small_scene();
+  auto r = run(fmt::format("render {} --out {} --spp 2e0", scene, (dir / "a").string()));
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_EQ(nlohmann::json::parse(std::ifstream(dir / "a/stats.json"))["samples"], 2);
+  r = run(fmt::format("render {} --out {} --spp 0", scene, (dir / "b").string()));
+  expect_one_line_error(r, "render.spp: must be in [1, 1048576], got 0");
+  EXPECT_LT(r.out.size(), 300u) << r.out;
+  expect_one_line_error(run(fmt::format("render {} --out {} --spp lots", scene, (dir / "c").string())),
+                        "render.spp: expected a number");
+}
+
 TEST_F(Cli, UnknownSetPath) {
   expect_one_line_error(
       run(fmt::format("render {} --out {} --set render.nope=1", small_scene(), dir.string())), "render.nope");

@@ -302,6 +302,10 @@ TEST(SceneOverrides, SetNestedValues) {
 TEST(SceneOverrides, Errors) {
   json j = {{"media", {procedural_medium(), procedural_medium()}}};
   auto set = [&](const std::string& a) { return [&j, a] { hs::apply_override(j, a, "scene.json"); }; };
+  hs::apply_override(j, "media[1].g=0.25", "scene.json");  // both spellings of an index
+  hs::apply_override(j, "media.0.g=0.5", "scene.json");
+  EXPECT_EQ(j["media"][1]["g"], 0.25);
+  EXPECT_EQ(j["media"][0]["g"], 0.5);
   expect_error(set("render.sppp=3"),
                {"scene.json: render.sppp: unknown key (did you mean \"spp\"?)", "--set"});
   expect_error(set("rendr.spp=3"), {"rendr", "did you mean \"render\""});
@@ -316,6 +320,13 @@ TEST(SceneOverrides, Errors) {
   expect_error(set("camera.position=1,nan,2"), {"camera.position", "finite"});
   expect_error(set("render.spp"), {"expected dotted.path=value"});
   expect_error(set("render..spp=1"), {"empty part"});
+  // Brackets are an index after a key, nothing else.
+  expect_error(set("media[0.g=0.5"), {"media[0.g", "a '[' without its index and ']'"});
+  expect_error(set("media[0]].g=0.5"), {"media[0]].g", "a ']' must be followed by"});
+  expect_error(set("media]0.g=0.5"), {"a ']' without its '['"});
+  expect_error(set("[0].g=0.5"), {"an index [n] must follow a key"});
+  expect_error(set("media[0]g=0.5"), {"a ']' must be followed by"});
+  expect_error(set("media.=1"), {"empty part"});
   expect_error(set("camera.position.1=7"), {"camera.position", "not in the file"});  // no such array in j
   // Values that parse as JSON but are out of range are caught by the reader, which names the --set.
   TempDir dir;
@@ -325,6 +336,13 @@ TEST(SceneOverrides, Errors) {
   expect_error([&] { hs::load(p.string(), {"render.exposure=1e999"}); }, {"render.exposure", "finite"});
   expect_error([&] { hs::load(p.string(), {"lights.sun.direction=[0,0,0]"}); },
                {"lights.sun.direction", "nonzero", "--set lights.sun.direction=[0,0,0]"});
+  // The last override of a key is the one whose value is read, and the one an error names.
+  const std::string msg = expect_error(
+      [&] {
+        hs::load(p.string(), {"render.spp=5", "render.spp=0"});
+      },
+      {"got 0", "(value from --set render.spp=0)"});
+  EXPECT_EQ(msg.find("render.spp=5"), std::string::npos) << msg;
   Scene s = hs::load(p.string(), {"render.spp=5", "render.width=10"});
   EXPECT_EQ(s.render.spp, 5);
   EXPECT_EQ(s.render.width, 10);
