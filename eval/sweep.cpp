@@ -54,14 +54,18 @@ SweepSpec load_sweep(const std::string& path, const std::vector<std::string>& cl
   sp.file = path;
   std::ifstream in(path);
   if (!in) throw render::Error(fmt::format("cannot open sweep file {}; check the path", path));
+  std::stringstream text;
+  text << in.rdbuf();
   json j;
   try {
-    j = json::parse(in, nullptr, true, /*ignore_comments=*/true);
+    j = json::parse(text.str(), nullptr, true, /*ignore_comments=*/true);
   } catch (const json::exception& e) {
     std::string what = e.what();
     if (auto b = what.find("] "); b != std::string::npos) what = what.substr(b + 2);
     throw render::Error(fmt::format("{}: malformed JSON: {}; fix the syntax", path, what));
   }
+  if (std::string dup = reflection::duplicate_key(text.str()); !dup.empty())
+    throw render::Error(fmt::format("{}: {}: the key appears twice in one object; keep one", path, dup));
   auto fail = [&](const std::string& key, const std::string& why) {
     throw render::Error(fmt::format("{}: {}: {}", path, key, why));
   };

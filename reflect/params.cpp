@@ -7,6 +7,7 @@
 #include <cfloat>
 #include <cmath>
 #include <cstdlib>
+#include <set>
 
 namespace haze::reflection {
 
@@ -140,6 +141,77 @@ void ReadContext::fail(std::string_view path, std::string_view what) const {
     }
   }
   throw Error(msg);
+}
+
+namespace {
+
+// SAX events of nlohmann::json, tracking the path and the keys of every open object.
+class DuplicateKeys : public nlohmann::json_sax<json> {
+ public:
+  std::string found;  // path of the first repeated key
+
+  bool key(string_t& k) override {
+    Frame& f = frames_.back();
+    f.key = k;
+    if (!f.keys.insert(k).second && found.empty()) found = join_path(f.path, k);
+    return found.empty();
+  }
+  bool start_object(std::size_t) override { return open(); }
+  bool end_object() override { return close(); }
+  bool start_array(std::size_t) override {
+    open();
+    frames_.back().array = true;
+    return true;
+  }
+  bool end_array() override { return close(); }
+  bool null() override { return value(); }
+  bool boolean(bool) override { return value(); }
+  bool number_integer(number_integer_t) override { return value(); }
+  bool number_unsigned(number_unsigned_t) override { return value(); }
+  bool number_float(number_float_t, const string_t&) override { return value(); }
+  bool string(string_t&) override { return value(); }
+  bool binary(binary_t&) override { return value(); }
+  bool parse_error(std::size_t, const std::string&, const nlohmann::detail::exception&) override {
+    return false;
+  }
+
+ private:
+  struct Frame {
+    std::string path;
+    bool array = false;
+    size_t index = 0;
+    std::string key;
+    std::set<std::string> keys;
+  };
+  std::vector<Frame> frames_;
+  // Where the value that starts now sits.
+  std::string here() const {
+    if (frames_.empty()) return "";
+    const Frame& f = frames_.back();
+    return f.array ? join_path(f.path, fmt::format("[{}]", f.index)) : join_path(f.path, f.key);
+  }
+  bool open() {
+    Frame f;
+    f.path = here();
+    frames_.push_back(std::move(f));
+    return true;
+  }
+  bool close() {
+    frames_.pop_back();
+    return value();
+  }
+  bool value() {
+    if (!frames_.empty() && frames_.back().array) ++frames_.back().index;
+    return true;
+  }
+};
+
+}  // namespace
+
+std::string duplicate_key(const std::string& text, bool ignore_comments) {
+  DuplicateKeys sax;
+  json::sax_parse(text, &sax, json::input_format_t::json, /*strict=*/true, ignore_comments);
+  return sax.found;
 }
 
 std::string format_params(const std::vector<ParamInfo>& params) {

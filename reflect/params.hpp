@@ -76,6 +76,11 @@ struct ParamInfo {
   std::string constraint;     // Constraint::text()
   std::string help;
 };
+// The JSON path of the first key that appears twice in one object of `text` ("render.spp",
+// "media[1].grid"); "" when there is none or when `text` is not valid JSON (its parser says that).
+// nlohmann::json keeps the last of two equal keys without a word.
+std::string duplicate_key(const std::string& text, bool ignore_comments = true);
+
 // A plain-text table of `describe` output, for `haze render --help-params`.
 std::string format_params(const std::vector<ParamInfo>& params);
 

@@ -249,6 +249,8 @@ Scene load(const std::string& path, const std::vector<std::string>& overrides) {
     if (auto bracket = what.find("] "); bracket != std::string::npos) what = what.substr(bracket + 2);
     throw Error(fmt::format("{}: malformed JSON: {}; fix the value", path, what));
   }
+  if (std::string dup = duplicate_key(text); !dup.empty())
+    throw Error(fmt::format("{}: {}: the key appears twice in one object; keep one", path, dup));
 
   ReadContext ctx{path, {}};
   for (const auto& o : overrides) ctx.overrides.emplace_back(apply_override_to<Scene>(j, o, path), o);

@@ -231,6 +231,20 @@ TEST(SceneLoad, MalformedJsonGivesLineAndColumn) {
   expect_error([&] { hs::load(empty.string()); }, {empty.string() + ": line 1, column 1: malformed JSON"});
 }
 
+// nlohmann::json keeps the last of two equal keys without a word; a scene file with one is refused.
+TEST(SceneLoad, DuplicateKeysAreNamed) {
+  TempDir dir;
+  fs::path p = dir.write("dup.json", "{\"render\": {\"spp\": 4, \"width\": 8, \"spp\": 16}}");
+  expect_error([&] { hs::load(p.string()); },
+               {p.string() + ": render.spp: the key appears twice", "keep one"});
+  fs::path q =
+      dir.write("dup2.json", "{\"media\": [{\"file\": \"a.vdb\"}, {\"grid\": \"d\", \"grid\": \"e\"}]}");
+  expect_error([&] { hs::load(q.string()); }, {"media[1].grid: the key appears twice"});
+  EXPECT_EQ(haze::reflection::duplicate_key("{\"a\": {\"b\": 1}, \"c\": [{\"b\": 2}, {\"b\": 3}]} // ok"),
+            "");
+  EXPECT_EQ(haze::reflection::duplicate_key("[1, {\"x\": [{}, {\"y\": 1, \"y\": 2}]}]"), "[1].x[1].y");
+}
+
 TEST(SceneLoad, CommentsAreAllowed) {
   TempDir dir;
   fs::path p = dir.write("c.json", "// a comment\n{ /* spp */ \"render\": {\"spp\": 8} }\n");

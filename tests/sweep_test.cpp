@@ -190,6 +190,12 @@ TEST(SweepFile, BadFilesFailBeforeAnyRun) {
                              (t.path() / "out").string()));
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.out.find("malformed JSON"), std::string::npos) << r.out;
+  // A key given twice (the JSON library would keep the last one silently).
+  std::string dup = kSweep;  // it has "seeds": 2
+  dup.insert(dup.find('{') + 1, "\"seeds\": 1, ");
+  r = run(fmt::format("sweep {} --out {}", t.write("bad.json", dup).string(), (t.path() / "out").string()));
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.out.find("bad.json: seeds: the key appears twice"), std::string::npos) << r.out;
 }
 
 TEST(SweepFile, TornLastRowIsDroppedAndCsvHasEveryColumn) {
