@@ -224,6 +224,11 @@ Scene load(const std::string& path, const std::vector<std::string>& overrides) {
   if (fs::is_directory(path, ec)) {
     throw Error(fmt::format("cannot open scene file {}: it is a directory; pass the .json file", path));
   }
+  if (fs::exists(path, ec) && !fs::is_regular_file(path, ec))
+    throw Error(
+        fmt::format("cannot open scene file {}: not a regular file (a device, pipe or socket); pass the "
+                    ".json file",
+                    path));
   std::ifstream in(path, std::ios::binary);
   if (!in) throw Error(fmt::format("cannot open scene file {}: {}", path, std::strerror(errno)));
   std::stringstream buffer;
@@ -260,9 +265,12 @@ Scene load(const std::string& path, const std::vector<std::string>& overrides) {
   s.path = path;
   // Files named by the scene must exist (a sequence's frames are checked below, per frame).
   auto require_file = [&](const std::string& key, const std::string& f) {
-    if (!f.empty() && !fs::is_regular_file(f, ec))
-      ctx.fail(key, fmt::format("no such file: {} (relative paths start at the scene file's folder {})", f,
-                                base_dir));
+    if (f.empty() || fs::is_regular_file(f, ec)) return;
+    if (fs::exists(f, ec))
+      ctx.fail(key, fmt::format("{} is {}, not a regular file; name a file", f,
+                                fs::is_directory(f, ec) ? "a directory" : "a device, pipe or socket"));
+    ctx.fail(key, fmt::format("no such file: {} (relative paths start at the scene file's folder {})", f,
+                              base_dir));
   };
   for (size_t i = 0; i < s.media.size(); ++i)
     if (!is_sequence(s.media[i].file)) require_file(fmt::format("media[{}].file", i), s.media[i].file);

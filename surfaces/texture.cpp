@@ -25,6 +25,11 @@ using StbImage = std::unique_ptr<T, decltype(&stbi_image_free)>;
 
 Texture load_texture(const std::string& path) {
   std::error_code ec;
+  if (std::filesystem::exists(path, ec) && !std::filesystem::is_regular_file(path, ec))
+    throw Error(
+        fmt::format("texture {}: not a regular file (a directory, device, pipe or socket); name an image "
+                    "file",
+                    path));
   if (!std::filesystem::is_regular_file(path, ec))
     throw Error(
         fmt::format("texture {}: no such file; check the path (relative paths start at the scene "

@@ -203,6 +203,24 @@ TEST_F(Cli, MissingSceneFile) {
                         "nope.json");
 }
 
+// Devices and pipes are refused by type before anything reads them (/dev/zero never ends).
+TEST_F(Cli, DeviceFilesAreRefusedByType) {
+  expect_one_line_error(run(fmt::format("render /dev/zero --out {}", (dir / "a").string())),
+                        "cannot open scene file /dev/zero: not a regular file");
+  for (const char* key : {"surfaces[0].file", "surfaces[0].albedo_texture", "media[0].file"}) {
+    const std::string k = key;
+    const std::string body =
+        k == "media[0].file" ? R"({"media": [{"file": "/dev/zero"}]})"
+        : k == "surfaces[0].file"
+            ? R"({"surfaces": [{"file": "/dev/zero"}]})"
+            : R"({"surfaces": [{"mesh": {"kind": "plane"}, "albedo_texture": "/dev/zero"}]})";
+    expect_one_line_error(
+        run(fmt::format("render {} --out {}", write("dev.json", body), (dir / "b").string())),
+        k + ": /dev/zero is a device, pipe or socket, not a regular file");
+  }
+  expect_one_line_error(run("vdb info /dev/zero"), "/dev/zero: not a regular file");
+}
+
 TEST_F(Cli, MalformedJson) {
   expect_one_line_error(
       run(fmt::format("render {} --out {}", write("bad.json", "{ \"camera\": "), dir.string())), "bad.json");
