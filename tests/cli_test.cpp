@@ -221,6 +221,17 @@ TEST_F(Cli, DeviceFilesAreRefusedByType) {
   expect_one_line_error(run("vdb info /dev/zero"), "/dev/zero: not a regular file");
 }
 
+// A procedural medium beyond OpenVDB's 32-bit index range: one line naming the scene file and the key
+// (OpenVDB's own "can't construct a dense grid with an empty bounding box" named neither).
+TEST_F(Cli, ProceduralMediumOutOfIndexRange) {
+  const std::string scene =
+      write("far.json", R"({"media": [{"procedural": {"kind": "cloud", "voxel_size": 0.1,
+      "center": [1.8e19, 0, 0], "size": [2, 2, 2]}}]})");
+  expect_one_line_error(
+      run(fmt::format("render {} --out {}", scene, (dir / "a").string())),
+      scene + ": media[0].procedural: key 'center' puts the grid 1.8e+20 voxels from the origin");
+}
+
 TEST_F(Cli, MalformedJson) {
   expect_one_line_error(
       run(fmt::format("render {} --out {}", write("bad.json", "{ \"camera\": "), dir.string())), "bad.json");

@@ -1,6 +1,7 @@
 // Procedural volume specs: JSON parsing, validation and the analytic fields (no OpenVDB here).
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cmath>
 #include <set>
 
@@ -106,6 +107,15 @@ void validate(const ProceduralSpec& s, const std::string& where) {
   if (voxels > double(1u << 27))
     bad("voxel_size", fmt::format("gives {:.3g} voxels (limit {:.3g}); raise voxel_size or shrink size",
                                   voxels, double(1u << 27)));
+  // OpenVDB's index coordinates are 32-bit: the grid must lie within +-2^30 voxels of the origin (and index
+  // positions must stay exact in the float of the shaders' world-to-index transform).
+  const glm::dvec3 far = glm::abs(s.center) + extent * 0.5;
+  const double reach = std::max({far.x, far.y, far.z}) / s.voxel_size;
+  if (reach > double(1 << 30))
+    bad("center",
+        fmt::format("puts the grid {:.3g} voxels from the origin (limit {:.3g} = 2^30); move the medium "
+                    "with its transform instead, or raise voxel_size",
+                    reach, double(1 << 30)));
 }
 
 ProceduralSpec procedural_from_json(const nlohmann::json& j, const std::string& where) {

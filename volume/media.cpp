@@ -62,9 +62,9 @@ DeviceMedia build_media(const scene::Scene& s, const DeviceMedia* previous) {
     std::string source =
         m.procedural ? "procedural " + m.procedural->dump() : resolve_path(s, m.file) + " " + m.grid;
     vdb::DeviceGrid density = grid_for(source, previous, [&] {
-      return m.procedural
-                 ? vdb::make_procedural(vdb::procedural_from_json(*m.procedural, where + ".procedural"))
-                 : vdb::load_grid(resolve_path(s, m.file), m.grid);
+      return m.procedural ? vdb::make_procedural(vdb::procedural_from_json(
+                                *m.procedural, (s.path.empty() ? "" : s.path + ": ") + where + ".procedural"))
+                          : vdb::load_grid(resolve_path(s, m.file), m.grid);
     });
     if (density.nan_voxels > 0)
       dm.notes.push_back(fmt::format("{}: {} NaN/Inf voxels replaced by 0", where, density.nan_voxels));
