@@ -299,6 +299,17 @@ TEST(Texture, BadFilesAreNamed) {
   e = error_of([&] { load_texture(cut); });
   EXPECT_NE(e.find(cut), std::string::npos) << e;
 
+  // An unknown critical chunk after IHDR: stb's reason holds the chunk type's raw bytes; the message shows
+  // them escaped.
+  std::string chunk = std::string("\0\0\0\0", 4) +
+                      "\x01\x9b"
+                      "A\x10";
+  chunk += std::string(4, '\0');  // CRC, not checked by stb
+  const std::string odd = write_file("odd_chunk.png", bytes.substr(0, 33) + chunk + bytes.substr(33));
+  e = error_of([&] { load_texture(odd); });
+  EXPECT_NE(e.find("\\x01\\x9bA\\x10"), std::string::npos) << e;
+  for (char c : e) EXPECT_TRUE(c >= 32 && c < 127) << "unprintable byte " << int(c) << " in: " << e;
+
   // An albedo over 1 is refused (the texel is named).
   const std::string bright = (temp_root() / "bright.hdr").string();
   const float hot[6] = {0.5f, 0.5f, 0.5f, 2.0f, 0.5f, 0.5f};
