@@ -16,9 +16,12 @@
 
 #include "eval/compare.hpp"
 #include "eval/metrics.hpp"
+#include "reflect/params.hpp"
 #include "render/output.hpp"
 #include "render/run.hpp"
 #include "scene/animation.hpp"
+#include "surfaces/scene_geometry.hpp"
+#include "vdb/vdb.h"
 
 namespace haze::eval {
 
@@ -126,6 +129,17 @@ SweepSpec load_sweep(const std::string& path, const std::vector<std::string>& cl
       sp.axes.push_back(std::move(ax));
     }
   }
+  // One axis per path: two would set the same value twice, and the last would win without a word.
+  std::map<std::string, std::string> axis_of;  // normalised path -> the axis that has it
+  for (size_t i = 0; i < sp.axes.size(); ++i)
+    for (const std::string& p : sp.axes[i].paths) {
+      std::vector<std::string> segs;
+      if (!reflection::detail::split_path(p, segs).empty()) continue;  // check_runs names a bad path
+      const std::string key = fmt::format("{}", fmt::join(segs, "."));
+      const std::string here = fmt::format("axes[{}]", i);
+      if (auto [it, fresh] = axis_of.try_emplace(key, here); !fresh)
+        fail(here, fmt::format("sets {}, which {} sets too; give each path one axis", p, it->second));
+    }
   if (j.contains("combine")) {
     if (!j["combine"].is_string()) fail("combine", "expected \"cartesian\", \"zip\" or \"each\"");
     sp.combine = j["combine"].get<std::string>();
@@ -284,7 +298,14 @@ void check_runs(const SweepSpec& spec, const std::vector<Run>& runs) {
     }
   for (const Run& r : runs) {
     try {
-      scene::load(spec.scene, r.overrides);
+      const scene::Scene s = scene::load(spec.scene, r.overrides);
+      // The free-form specs that the scene reader leaves to the parts: checked here, before any run.
+      for (size_t i = 0; i < s.media.size(); ++i)
+        if (s.media[i].procedural)
+          vdb::procedural_from_json(*s.media[i].procedural, fmt::format("media[{}].procedural", i));
+      for (size_t i = 0; i < s.surfaces.size(); ++i)
+        if (s.surfaces[i].mesh)
+          surfaces::mesh_from_json(*s.surfaces[i].mesh, fmt::format("surfaces[{}].mesh", i));
     } catch (const std::exception& e) {
       throw render::Error(
           fmt::format("{}: run {} {}: {}", spec.file, r.index, r.settings.dump(), from_sweep(e.what())));
@@ -456,7 +477,12 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
   render::ensure_writable_dir(dir);
   // One sweep per folder: a different sweep file here would mix its rows with these.
   const std::string spec_path = (fs::path(dir) / "sweep.json").string();
-  if (fs::exists(spec_path)) {
+  const std::string jsonl = (fs::path(dir) / "results.jsonl").string();
+  const std::string csv = (fs::path(dir) / "results.csv").string();
+  std::vector<json> rows = read_results(jsonl);
+  // A folder without results belongs to no sweep yet (an earlier attempt may have failed before its first
+  // row): its sweep.json is replaced.
+  if (fs::exists(spec_path) && !rows.empty()) {
     std::ifstream f(spec_path);
     json old = json::parse(f, nullptr, false);
     if (old.is_discarded() || old != spec.canonical)
@@ -467,9 +493,6 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
   } else {
     render::write_json(spec_path, spec.canonical);
   }
-  const std::string jsonl = (fs::path(dir) / "results.jsonl").string();
-  const std::string csv = (fs::path(dir) / "results.csv").string();
-  std::vector<json> rows = read_results(jsonl);
   std::set<std::string> done;
   for (const auto& r : rows) done.insert(r["run"].get<std::string>());
   std::vector<Run> todo;
@@ -485,109 +508,119 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
   int code = 0;
   for (size_t i = 0; i < todo.size(); ++i) {
     const Run& run = todo[i];
-    auto t0 = clock::now();
-    scene::Scene s = scene::load(spec.scene, run.overrides);
-    auto [first, last] = scene::frame_range(s);
-    std::string ref_dir;
-    if (spec.reference) {
-      ref_dir = (fs::path(out) / "references" / reference_key(reference_scene(s), *spec.reference)).string();
-      ReferenceHooks rh;
-      rh.on_frame = [&](const ReferenceFrame& f, bool cached) {
-        if (!cached)
-          log(fmt::format("reference frame {}: {} spp, error {:.3g} at quantile {} ({})", f.frame, f.spp,
-                          f.error_quantile, spec.reference->quantile,
-                          f.converged ? "converged" : "budget spent"));
-      };
-      make_reference(ctx, s, first, last, ref_dir, *spec.reference, rh, r);
-    }
-    const std::string run_dir = (fs::path(dir) / "runs" / run.id).string();
-    if (spec.save_images != "none") render::ensure_writable_dir(run_dir);
-    std::vector<std::vector<float>> test_frames;
-    std::vector<LayerImage> ref_frames;
-    json per_frame = json::array(), memory, images = json::array();
-    size_t bad = 0;
-    render::FrameLoop loop;
-    loop.on_frame = [&](int f, const render::Image& img) {
-      bad += count_nonfinite(img);
-      json m = {{"frame", f}};
+    try {
+      auto t0 = clock::now();
+      scene::Scene s = scene::load(spec.scene, run.overrides);
+      auto [first, last] = scene::frame_range(s);
+      std::string ref_dir;
       if (spec.reference) {
-        test_frames.push_back(layer_values(img, spec.layer));
-        ref_frames.push_back(read_layer(reference_frame_path(ref_dir, f), ""));
-        const size_t pixels = size_t(img.width) * img.height;
-        Channels x{test_frames.back().data(), pixels, 3, 0, 3};
-        m.update(image_metrics(x, ref_frames.back().view(), img.width, img.height));
+        ref_dir =
+            (fs::path(out) / "references" / reference_key(reference_scene(s), *spec.reference)).string();
+        ReferenceHooks rh;
+        rh.on_frame = [&](const ReferenceFrame& f, bool cached) {
+          if (!cached)
+            log(fmt::format("reference frame {}: {} spp, error {:.3g} at quantile {} ({})", f.frame, f.spp,
+                            f.error_quantile, spec.reference->quantile,
+                            f.converged ? "converged" : "budget spent"));
+        };
+        make_reference(ctx, s, first, last, ref_dir, *spec.reference, rh, r);
       }
-      per_frame.push_back(m);
-      if (spec.save_images == "all" || (spec.save_images == "last" && f == last)) {
-        std::string path = (fs::path(run_dir) / fmt::format("frame_{:04d}.exr", f)).string();
-        render::write_exr(path, img);
-        images.push_back(relative_to(path, dir));
-      }
-      if (f == last) memory = ctx.ledger().to_json();
-    };
-    // Warm-up: one sample of the first frame, discarded, so that compilation at the first dispatch
-    // (lavapipe compiles there) and pipeline creation stay out of the run's timings.
-    scene::Scene warm = s;
-    warm.render.spp = 1;
-    const double pipeline_ms =
-        render::render_frames(ctx, warm, first, first, render::FrameLoop{}, r).stats["pipeline_creation_ms"];
-    ctx.ledger().reset_peak();
-    render::RunSummary rs = render::render_frames(ctx, s, first, last, loop, r);
-    const int frames = last - first + 1;
-    json row = {{"run", run.id},
-                {"index", run.index},
-                {"settings", run.settings},
-                {"frames", fmt::format("{}:{}", first, last)},
-                {"samples", s.render.spp},
-                {"nonfinite", bad},
-                {"device", ctx.device_name()}};
-    row["time"] = {{"gpu_ms_per_frame", rs.gpu_ms / frames},
-                   {"trace_ms_per_frame",
-                    [&] {
-                      double t = 0;
-                      for (const auto& f : rs.per_frame) t += f["trace_gpu_ms"].get<double>();
-                      return t / frames;
-                    }()},
-                   {"pipeline_ms", pipeline_ms},
-                   {"setup_s", rs.setup_s},
-                   {"render_s", rs.render_s},
-                   {"wall_s", std::chrono::duration<double>(clock::now() - t0).count()}};
-    json passes = json::object();
-    for (const auto& [name, st] : rs.stats["passes"].items())
-      passes[name] = {{"ms_per_frame", st["total_ms"].get<double>() / frames},
-                      {"median_ms", st.value("median_ms", 0.0)},
-                      {"count", st["count"]}};
-    row["passes"] = passes;
-    memory.erase("entries");  // per buffer: in stats of `haze render`; categories suffice here
-    row["memory"] = memory;
-    if (spec.reference) {
-      json mean = json::object();
-      for (const auto& f : per_frame)
-        for (const auto& [k, v] : f.items())
-          if (k != "frame" && v.is_number()) mean[k] = mean.value(k, 0.0) + v.get<double>() / frames;
-      for (const auto& f : per_frame)  // PSNR of identical frames is "inf"
-        if (f.contains("psnr") && f["psnr"].is_string()) mean["psnr"] = "inf";
-      row["metrics"] = mean;
-      if (frames > 1) {
-        const size_t pixels = size_t(s.render.width) * s.render.height;
-        std::vector<Channels> x, y;
-        for (int f = 0; f < frames; ++f) {
-          x.push_back({test_frames[size_t(f)].data(), pixels, 3, 0, 3});
-          y.push_back(ref_frames[size_t(f)].view());
+      const std::string run_dir = (fs::path(dir) / "runs" / run.id).string();
+      if (spec.save_images != "none") render::ensure_writable_dir(run_dir);
+      std::vector<std::vector<float>> test_frames;
+      std::vector<LayerImage> ref_frames;
+      json per_frame = json::array(), memory, images = json::array();
+      size_t bad = 0;
+      render::FrameLoop loop;
+      loop.on_frame = [&](int f, const render::Image& img) {
+        bad += count_nonfinite(img);
+        json m = {{"frame", f}};
+        if (spec.reference) {
+          test_frames.push_back(layer_values(img, spec.layer));
+          ref_frames.push_back(read_layer(reference_frame_path(ref_dir, f), ""));
+          const size_t pixels = size_t(img.width) * img.height;
+          Channels x{test_frames.back().data(), pixels, 3, 0, 3};
+          m.update(image_metrics(x, ref_frames.back().view(), img.width, img.height));
         }
-        row["temporal"] = temporal(x, y).to_json();
+        per_frame.push_back(m);
+        if (spec.save_images == "all" || (spec.save_images == "last" && f == last)) {
+          std::string path = (fs::path(run_dir) / fmt::format("frame_{:04d}.exr", f)).string();
+          render::write_exr(path, img);
+          images.push_back(relative_to(path, dir));
+        }
+        if (f == last) memory = ctx.ledger().to_json();
+      };
+      // Warm-up: one sample of the first frame, discarded, so that compilation at the first dispatch
+      // (lavapipe compiles there) and pipeline creation stay out of the run's timings.
+      scene::Scene warm = s;
+      warm.render.spp = 1;
+      const double pipeline_ms = render::render_frames(ctx, warm, first, first, render::FrameLoop{}, r)
+                                     .stats["pipeline_creation_ms"];
+      ctx.ledger().reset_peak();
+      render::RunSummary rs = render::render_frames(ctx, s, first, last, loop, r);
+      const int frames = last - first + 1;
+      json row = {{"run", run.id},
+                  {"index", run.index},
+                  {"settings", run.settings},
+                  {"frames", fmt::format("{}:{}", first, last)},
+                  {"samples", s.render.spp},
+                  {"nonfinite", bad},
+                  {"device", ctx.device_name()}};
+      row["time"] = {{"gpu_ms_per_frame", rs.gpu_ms / frames},
+                     {"trace_ms_per_frame",
+                      [&] {
+                        double t = 0;
+                        for (const auto& f : rs.per_frame) t += f["trace_gpu_ms"].get<double>();
+                        return t / frames;
+                      }()},
+                     {"pipeline_ms", pipeline_ms},
+                     {"setup_s", rs.setup_s},
+                     {"render_s", rs.render_s},
+                     {"wall_s", std::chrono::duration<double>(clock::now() - t0).count()}};
+      json passes = json::object();
+      for (const auto& [name, st] : rs.stats["passes"].items())
+        passes[name] = {{"ms_per_frame", st["total_ms"].get<double>() / frames},
+                        {"median_ms", st.value("median_ms", 0.0)},
+                        {"count", st["count"]}};
+      row["passes"] = passes;
+      memory.erase("entries");  // per buffer: in stats of `haze render`; categories suffice here
+      row["memory"] = memory;
+      if (spec.reference) {
+        json mean = json::object();
+        for (const auto& f : per_frame)
+          for (const auto& [k, v] : f.items())
+            if (k != "frame" && v.is_number()) mean[k] = mean.value(k, 0.0) + v.get<double>() / frames;
+        for (const auto& f : per_frame)  // PSNR of identical frames is "inf"
+          if (f.contains("psnr") && f["psnr"].is_string()) mean["psnr"] = "inf";
+        row["metrics"] = mean;
+        if (frames > 1) {
+          const size_t pixels = size_t(s.render.width) * s.render.height;
+          std::vector<Channels> x, y;
+          for (int f = 0; f < frames; ++f) {
+            x.push_back({test_frames[size_t(f)].data(), pixels, 3, 0, 3});
+            y.push_back(ref_frames[size_t(f)].view());
+          }
+          row["temporal"] = temporal(x, y).to_json();
+        }
+        row["reference"] = relative_to(ref_dir, dir);
+        row["per_frame"] = per_frame;
       }
-      row["reference"] = relative_to(ref_dir, dir);
-      row["per_frame"] = per_frame;
-    }
-    row["images"] = images;
-    row["notes"] = rs.notes;
-    append_line(jsonl, row.dump());
-    rows.push_back(row);
-    render::write_text(csv, results_csv(rows));
-    if (bad > 0 && spec.require_finite) {
-      log(fmt::format("run {} {}: {} NaN or Inf values", run.index, run.settings.dump(), bad));
-      code = 4;
+      row["images"] = images;
+      row["notes"] = rs.notes;
+      append_line(jsonl, row.dump());
+      rows.push_back(row);
+      render::write_text(csv, results_csv(rows));
+      if (bad > 0 && spec.require_finite) {
+        log(fmt::format("run {} {}: {} NaN or Inf values", run.index, run.settings.dump(), bad));
+        code = 4;
+      }
+    } catch (const render::Error& e) {
+      // A failure in a run names the sweep and the run; the rows written so far stay.
+      throw render::Error(
+          fmt::format("{}: run {} {}: {}", spec.file, run.index, run.settings.dump(), e.what()));
+    } catch (const std::exception& e) {
+      throw render::Error(
+          fmt::format("{}: run {} {}: {}", spec.file, run.index, run.settings.dump(), e.what()));
     }
     if (hooks.progress) hooks.progress(i + 1, todo.size(), &rows.back());
   }

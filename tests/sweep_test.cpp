@@ -171,6 +171,12 @@ TEST(SweepFile, BadFilesFailBeforeAnyRun) {
       {R"({"reference": {"budget": 4}})", "reference.budget: unknown key"},
       {R"({"set": {"haze.sigma_t": "thick"}})", "haze.sigma_t"},
       {R"({"scene": "missing.json"})", "no such file"},
+      {R"({"axes": [{"path": "render.spp", "values": [1]}, {"path": "render.seed", "values": [1]},
+                    {"paths": ["render.width", "render.spp"], "values": [[8, 2]]}]})",
+       "axes[2]: sets render.spp, which axes[0] sets too"},
+      {R"({"axes": [{"path": "lights.points[0].intensity", "values": [1]},
+                    {"path": "lights.points.0.intensity", "values": [2]}]})",
+       "axes[1]: sets lights.points.0.intensity, which axes[0] sets too"},
   };
   for (const auto& c : cases) {
     json j = json::parse(kSweep);
@@ -196,6 +202,36 @@ TEST(SweepFile, BadFilesFailBeforeAnyRun) {
   r = run(fmt::format("sweep {} --out {}", t.write("bad.json", dup).string(), (t.path() / "out").string()));
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.out.find("bad.json: seeds: the key appears twice"), std::string::npos) << r.out;
+}
+
+// A procedural key of the wrong type fails before any run (the scene reader leaves procedural specs to
+// vdb/), names the sweep file, and does not claim the folder: the corrected sweep then runs there.
+TEST(SweepFile, FailedSweepDoesNotBlockItsFolder) {
+  TempDir t("haze-sweep");
+  t.write("scene.json", R"({
+    "camera": {"position": [0, 0, 4], "target": [0, 0, 0]},
+    "media": [{"procedural": {"kind": "sphere", "voxel_size": 0.2, "center": [0, 0, 0], "size": [1.6, 1.6, 1.6]}}],
+    "lights": {"sun": {"direction": [0, 1, 0]}},
+    "render": {"width": 8, "height": 8, "spp": 1}
+  })");
+  auto sweep = [&](const std::string& voxel) {
+    return t
+        .write("s.json",
+               fmt::format(R"({{"scene": "scene.json", "set": {{"media.0.procedural.voxel_size": {}}},
+        "axes": [{{"path": "render.spp", "values": [1, 2]}}], "reference": false}})",
+                           voxel))
+        .string();
+  };
+  const std::string out = (t.path() / "out").string();
+  Result r = run(fmt::format("sweep {} --out {}", sweep("\"x\""), out));
+  EXPECT_NE(r.code, 0) << r.out;
+  EXPECT_NE(r.out.find("s.json: run 0"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("media[0].procedural: key 'voxel_size'"), std::string::npos) << r.out;
+  EXPECT_FALSE(fs::exists(fs::path(out) / "results.jsonl"));
+  // The same folder takes the corrected sweep.
+  r = run(fmt::format("sweep {} --out {}", sweep("0.2"), out));
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_EQ(lines(fs::path(out) / "results.jsonl").size(), 2u);
 }
 
 TEST(SweepFile, TornLastRowIsDroppedAndCsvHasEveryColumn) {
