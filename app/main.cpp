@@ -87,7 +87,14 @@ int run_render(const std::string& scene_path, const std::string& out, const std:
   if (!spp.empty()) overrides.push_back(fmt::format("render.spp={}", spp));
   scene::Scene s = load_scene(scene_path, overrides, size, frames);
   auto [first, last] = scene::frame_range(s);
-  render::ensure_writable_dir(out);
+  // All or nothing: the frames and stats.json replace the folder's earlier ones only when every frame
+  // rendered and wrote.
+  render::OutputSet outs(out);
+  auto frame_name = [](int f, const char* ext) { return fmt::format("frame_{:04d}.{}", f, ext); };
+  for (int f = first; f <= last; ++f)
+    for (const char* ext : {"exr", "png"})
+      if (s.render.wants(ext)) outs.check(frame_name(f, ext));
+  if (s.render.wants("stats")) outs.check("stats.json");
   gpu::Context ctx(co);
   fmt::print(stderr, "device: {} ({})\n", ctx.device_name(), ctx.driver_info());
   render::FrameLoop loop;
@@ -97,9 +104,8 @@ int run_render(const std::string& scene_path, const std::string& out, const std:
     if (b > a) fmt::print(stderr, "frame {} ({}..{})\n", f, a, b);
   };
   loop.on_frame = [&](int f, const render::Image& img) {
-    std::string base = (std::filesystem::path(out) / fmt::format("frame_{:04d}", f)).string();
-    if (s.render.wants("exr")) render::write_exr(base + ".exr", img);
-    if (s.render.wants("png")) render::write_png(base + ".png", img);
+    if (s.render.wants("exr")) render::write_exr(outs.stage(frame_name(f, "exr")), img);
+    if (s.render.wants("png")) render::write_png(outs.stage(frame_name(f, "png")), img);
   };
   std::unique_ptr<render::Renderer> r;
   render::RunSummary run = render::render_frames(ctx, s, first, last, loop, r);
@@ -110,7 +116,8 @@ int run_render(const std::string& scene_path, const std::string& out, const std:
   st["notes"] = run.notes;  // of every frame, each once
   st["setup_s"] = run.setup_s;
   st["render_s"] = run.render_s;
-  if (s.render.wants("stats")) render::write_json((std::filesystem::path(out) / "stats.json").string(), st);
+  if (s.render.wants("stats")) render::write_json(outs.stage("stats.json"), st);
+  outs.commit();
   fmt::print(stderr, "wrote {} ({} frame{}, {} spp, {:.1f} s setup, {:.1f} s render)\n", out,
              last - first + 1, last > first ? "s" : "", s.render.spp, run.setup_s, run.render_s);
   if (ctx.validation_messages() > 0) {

@@ -135,7 +135,11 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
   if (fs::equivalent(in_dir, out_dir, ec))
     throw Error(
         fmt::format("--out {} is the input folder; choose another so that no frame is overwritten", out_dir));
-  ensure_writable_dir(out_dir);
+  // All or nothing: a corrupt frame further on leaves the folder's earlier outputs as they were.
+  OutputSet outs(out_dir);
+  for (const auto& f : files)
+    for (const char* ext : {".exr", ".png"}) outs.check(f.stem().string() + ext);
+  outs.check("stats.json");
 
   std::unique_ptr<denoise::Svgf> svgf;
   gpu::Buffer colour, volume, ldr;
@@ -197,8 +201,8 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
       planes[6][p] = res.history[p];
       planes[7][p] = res.variance[p];
     }
-    const std::string stem = (fs::path(out_dir) / files[i].stem()).string();
-    write_exr_channels(stem + ".exr", W, H,
+    const std::string stem = files[i].stem().string();
+    write_exr_channels(outs.stage(stem + ".exr"), W, H,
                        {{"denoised.R", &planes[0]},
                         {"denoised.G", &planes[1]},
                         {"denoised.B", &planes[2]},
@@ -207,7 +211,7 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
                         {"surface_denoised.B", &planes[5]},
                         {"surface_history.Y", &planes[6]},
                         {"surface_denoised_variance.Y", &planes[7]}});
-    write_png_rgba8(stem + ".png", W, H, ldr.download_vector<uint32_t>());
+    write_png_rgba8(outs.stage(stem + ".png"), W, H, ldr.download_vector<uint32_t>());
     frames.push_back({{"input", file}, {"gpu_ms", total}});
   }
   nlohmann::json passes = nlohmann::json::object();
@@ -219,7 +223,8 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
                        {"frames", frames},
                        {"passes", passes},
                        {"memory", ctx.ledger().to_json()}};
-  write_json((fs::path(out_dir) / "stats.json").string(), st);
+  write_json(outs.stage("stats.json"), st);
+  outs.commit();
   return st;
 }
 

@@ -10,6 +10,7 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <csignal>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -208,6 +209,58 @@ void ensure_writable_dir(const std::string& dir) {
   if (!f) throw Error(fmt::format("output directory {} is not writable; choose a writable --out", dir));
   f.close();
   fs::remove(probe, ec);
+}
+
+namespace {
+
+// ".NAME.tmp<pid>" (temp_path_for) of a process that has ended: a run that was killed.
+bool stale_temporary(const fs::path& p) {
+  const std::string n = p.filename().string();
+  const size_t tmp = n.rfind(".tmp");
+  if (n.empty() || n[0] != '.' || tmp == std::string::npos || tmp + 4 >= n.size()) return false;
+  const std::string digits = n.substr(tmp + 4);
+  if (digits.find_first_not_of("0123456789") != std::string::npos || digits.size() > 9) return false;
+  const pid_t pid = pid_t(std::stol(digits));
+  return pid != getpid() && ::kill(pid, 0) != 0 && errno == ESRCH;
+}
+
+}  // namespace
+
+OutputSet::OutputSet(std::string dir) : dir_(std::move(dir)) {
+  ensure_writable_dir(dir_);
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(dir_, ec))
+    if (e.is_regular_file(ec) && stale_temporary(e.path())) fs::remove(e.path(), ec);
+}
+
+OutputSet::~OutputSet() {
+  if (committed_) return;
+  std::error_code ec;
+  for (const auto& [tmp, target] : staged_) fs::remove(tmp, ec);
+}
+
+void OutputSet::check(const std::string& name) const {
+  const std::string target = (fs::path(dir_) / name).string();
+  std::error_code ec;
+  if (fs::is_directory(target, ec))
+    throw Error(
+        fmt::format("cannot write {}: it is a directory; move it away or choose another --out", target));
+}
+
+std::string OutputSet::stage(const std::string& name) {
+  check(name);
+  const std::string target = (fs::path(dir_) / name).string();
+  staged_.emplace_back(temp_path_for(target), target);
+  return staged_.back().first;
+}
+
+void OutputSet::commit() {
+  for (const auto& [tmp, target] : staged_) {
+    std::error_code ec;
+    fs::rename(tmp, target, ec);
+    if (ec) throw Error(fmt::format("cannot write {}: {}", target, ec.message()));
+  }
+  committed_ = true;
 }
 
 const std::vector<float>& ExrImage::channel(const std::string& name) const {

@@ -36,6 +36,31 @@ void write_text(const std::string& path, const std::string& text);
 // Creates dir if needed and checks that a file can be created in it; throws a one-line Error otherwise.
 void ensure_writable_dir(const std::string& dir);
 
+// The outputs of one run, all or nothing. stage(target) gives the path a writer writes instead of the
+// target: a hidden temporary beside it (".NAME.tmp<pid>"). commit() renames every staged file onto its
+// target, in staging order; a run that fails before commit() leaves the folder's earlier outputs as they
+// were, and its temporaries are removed (by the destructor, or, after a kill, by the next run in the
+// folder, which removes the temporaries of processes that no longer exist).
+class OutputSet {
+ public:
+  explicit OutputSet(std::string dir);
+  ~OutputSet();
+  OutputSet(const OutputSet&) = delete;
+  OutputSet& operator=(const OutputSet&) = delete;
+
+  // Refuses a target `name` (in dir()) that is a directory: call it for every output before rendering.
+  void check(const std::string& name) const;
+  // check(), then the path to write instead of the target.
+  std::string stage(const std::string& name);
+  void commit();
+  const std::string& dir() const { return dir_; }
+
+ private:
+  std::string dir_;
+  std::vector<std::pair<std::string, std::string>> staged_;  // (staging path, target)
+  bool committed_ = false;
+};
+
 // Reads a float EXR's channels by name (for tests and `haze compare`). Missing channel -> Error.
 struct ExrImage {
   int width = 0, height = 0;

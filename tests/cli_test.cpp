@@ -297,6 +297,54 @@ TEST_F(Cli, FailedRunLeavesExistingOutputsIntact) {
   for (const auto& e : fs::directory_iterator(dir / "out")) EXPECT_EQ(e.path().filename(), "frame_0000.exr");
 }
 
+std::string file_bytes(const fs::path& p) {
+  std::ifstream f(p, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(f), {});
+}
+
+// No temporary of this or a killed run is left in `d`.
+void expect_no_temporaries(const fs::path& d) {
+  for (const auto& e : fs::directory_iterator(d))
+    EXPECT_EQ(e.path().filename().string().find(".tmp"), std::string::npos) << e.path();
+}
+
+// A run that fails part-way (a VDB sequence whose second file is truncated) replaces none of the folder's
+// outputs: frames are staged and renamed only when every frame rendered.
+TEST_F(Cli, FailingSequenceReplacesNoOutput) {
+  for (int f = 0; f < 2; ++f)
+    ASSERT_EQ(run(fmt::format("vdb make box --out {} --voxel-size 0.1 --size 1 1 1",
+                              (dir / fmt::format("seq_{:04d}.vdb", f)).string()))
+                  .code,
+              0);
+  const std::string scene = write("seq.json", R"({
+    "camera": {"position": [0, 0, 3], "target": [0, 0, 0]},
+    "media": [{"file": "seq_####.vdb"}], "lights": {"sun": {"direction": [0, 1, 0]}},
+    "render": {"width": 16, "height": 12, "spp": 1, "frames": "0:1"}})");
+  const fs::path out = dir / "out";
+  auto r = run(fmt::format("render {} --out {}", scene, out.string()));
+  ASSERT_EQ(r.code, 0) << r.out;
+  const std::string exr = file_bytes(out / "frame_0000.exr"), stats = file_bytes(out / "stats.json");
+  // A killed run's temporary (a process id that no longer exists) is cleaned up by the next run.
+  write("out/.frame_0000.exr.tmp999999999", "left by a killed run");
+  fs::resize_file(dir / "seq_0001.vdb", 100);
+  r = run(fmt::format("render {} --out {} --set render.seed=9", scene, out.string()));
+  expect_one_line_error(r, "seq_0001.vdb");
+  EXPECT_EQ(file_bytes(out / "frame_0000.exr"), exr) << "frame 0 was replaced by a failing run";
+  EXPECT_EQ(file_bytes(out / "stats.json"), stats);
+  expect_no_temporaries(out);
+}
+
+// A stats.json that is a directory is refused before anything renders or is replaced.
+TEST_F(Cli, OutputThatIsADirectoryIsRefusedUpFront) {
+  fs::create_directories(dir / "out/stats.json");
+  write("out/frame_0000.exr", "precious");
+  auto r = run(fmt::format("render {} --out {}", small_scene(), (dir / "out").string()));
+  expect_one_line_error(r, "stats.json: it is a directory");
+  EXPECT_EQ(r.out.find("device:"), std::string::npos) << "checked before the device starts: " << r.out;
+  EXPECT_EQ(file_bytes(dir / "out/frame_0000.exr"), "precious");
+  expect_no_temporaries(dir / "out");
+}
+
 TEST_F(Cli, VdbMakeAndInfo) {
   std::string f = (dir / "cloud.vdb").string();
   auto m = run(fmt::format("vdb make cloud --out {} --voxel-size 0.1 --size 2 2 2 --seed 4", f));
@@ -456,6 +504,14 @@ TEST_F(Cli, DenoiseAnExrSequence) {
 
   expect_one_line_error(
       run(fmt::format("denoise {} --out {}", (dir / "none").string(), (dir / "o").string())), "none");
+  // A corrupt second frame: the earlier outputs in --out stay as they were, no temporary is left.
+  const std::string d0 = file_bytes(dir / "d/frame_0000.exr"), p0 = file_bytes(dir / "d/frame_0000.png");
+  fs::resize_file(dir / "r/frame_0001.exr", 200);
+  expect_one_line_error(run(fmt::format("denoise {} --out {}", (dir / "r").string(), (dir / "d").string())),
+                        "frame_0001.exr");
+  EXPECT_EQ(file_bytes(dir / "d/frame_0000.exr"), d0);
+  EXPECT_EQ(file_bytes(dir / "d/frame_0000.png"), p0);
+  expect_no_temporaries(dir / "d");
   fs::create_directories(dir / "empty");
   expect_one_line_error(
       run(fmt::format("denoise {} --out {}", (dir / "empty").string(), (dir / "o").string())),
