@@ -129,6 +129,9 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   surfaces_.fill(g);
   guide_.fill(g);
   if (!scene_buf_.valid()) scene_buf_ = gpu::Buffer(ctx_, "scene", "scene data", sizeof(g), "GpuScene");
+  if (!counters_.valid())
+    counters_ =
+        gpu::Buffer(ctx_, "frame counters", "per-frame temporaries", glsl::COUNTERS * 4, "u32 COUNT_*");
   scene_buf_.upload(&g, sizeof(g));
 
   // The frame's layers, remade only when the size changes.
@@ -149,6 +152,7 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   gpu::KernelDecl t("volume/trace.comp");
   t.buffer("scene", sizeof(g));
   accum_.declare(t);
+  t.buffer("counters", glsl::COUNTERS * 4);
   media_.declare(t);
   lights_.declare(t);
   if (s.render.max_depth > 1) t.define("HAZE_MULTI");
@@ -214,7 +218,7 @@ bool Renderer::has_feature(std::string_view name) const {
 
 gpu::Bindings Renderer::frame_bindings() const {
   gpu::Bindings b;
-  b.set("scene", scene_buf_).set("ldr", ldr_);
+  b.set("scene", scene_buf_).set("ldr", ldr_).set("counters", counters_);
   accum_.bind(b);
   out_.bind(b);
   gbuffer_.bind(b);
@@ -231,6 +235,7 @@ void Renderer::record_times() {
 
 void Renderer::start_frame(VkCommandBuffer cmd) {
   const auto& r = scene_.render;
+  counters_.fill_zero(cmd);
   // Keep the last frame's G-buffer, then write this one's.
   gbuffer_.copy_to(cmd, prev_gbuffer_);
   gpu::compute_barrier(cmd);
@@ -339,6 +344,9 @@ Image Renderer::resolve() {
   if (svgf_surface_) img.surface_denoised = svgf_surface_->download();
   if (svgf_volume_) img.volume_denoised = svgf_volume_->download();
   if (volume_motion_) img.volume_motion = volume_motion_->download();
+  const std::vector<uint32_t> counts = counters_.download_vector<uint32_t>();
+  img.non_finite = counts[glsl::COUNT_NON_FINITE];
+  img.clamped_squares = counts[glsl::COUNT_CLAMPED_SQUARES];
   return img;
 }
 

@@ -43,6 +43,8 @@ struct Image {
   std::optional<denoise::SvgfResult> surface_denoised;  // when the surface instance ran
   std::optional<denoise::SvgfResult> volume_denoised;   // when the volume instance ran
   std::vector<glm::vec4> volume_motion;  // when computed: guiding::VolumeMotion::output() per pixel
+  uint64_t non_finite = 0;               // samples dropped for a non-finite radiance (COUNT_NON_FINITE)
+  uint64_t clamped_squares = 0;          // samples with a square capped at SQUARE_MAX
   float at(int x, int y, uint32_t channel) const {
     return data[(size_t(y) * width + x) * glsl::OUT_STRIDE + channel];
   }
@@ -130,7 +132,7 @@ class Renderer {
   std::unique_ptr<denoise::Svgf> svgf_volume_;            // scenes with media, denoise.volume.enabled
   std::unique_ptr<guiding::VolumeMotion> volume_motion_;  // for the volume instance and guiding's reuse
   // The frame's own data.
-  gpu::Buffer scene_buf_, ldr_;
+  gpu::Buffer scene_buf_, ldr_, counters_;
   gpu::PixelLayers accum_, out_, gbuffer_, prev_gbuffer_;
   gpu::Kernel trace_, resolve_, gbuffer_pass_, tonemap_;
   bool has_frame_ = false;  // a frame was resolved since the layers were (re)made: history exists

@@ -22,7 +22,8 @@ struct RunSummary {
   nlohmann::json per_frame = nlohmann::json::array();  // {frame, setup_s, render_s, gpu_ms, trace_gpu_ms}
   std::vector<std::string> notes;
   double setup_s = 0, render_s = 0;
-  double gpu_ms = 0;     // every pass's GPU time over all frames
+  double gpu_ms = 0;                             // every pass's GPU time over all frames
+  uint64_t non_finite = 0, clamped_squares = 0;  // Image::non_finite and clamped_squares over all frames
   nlohmann::json stats;  // Renderer::stats() after the last frame: passes, memory, features
 };
 

@@ -146,6 +146,26 @@ TEST_F(Cli, FullDiskFailsLoudlyAndKeepsThePreviousOutputs) {
   }
 }
 
+// A valid but absurd emitter (1e20 per channel, squares 1e40 beyond float): every layer stays finite, and
+// stats.json counts the samples whose squares were clamped, every sample here since the plane fills the view.
+TEST_F(Cli, HugeEmitterStaysFiniteAndSaysSo) {
+  const std::string scene = write("hot.json", R"({"camera": {"position": [0, 0, 1], "target": [0, 0, 0]},
+    "surfaces": [{"mesh": {"kind": "plane", "size": [20, 20]}, "albedo": [0.7, 0.7, 0.7],
+                  "emission": [1e20, 1e20, 1e20]}],
+    "render": {"width": 16, "height": 12, "spp": 3}})");
+  auto r = run(fmt::format("render {} --out {}", scene, (dir / "o").string()));
+  ASSERT_EQ(r.code, 0) << r.out;
+  const auto img = haze::render::read_exr((dir / "o/frame_0000.exr").string());
+  for (size_t c = 0; c < img.channels.size(); ++c)
+    for (float v : img.data[c]) ASSERT_TRUE(std::isfinite(v)) << img.channels[c];
+  const auto st = nlohmann::json::parse(std::ifstream(dir / "o/stats.json"));
+  EXPECT_EQ(st["frames"][0]["clamped_squares"], 16 * 12 * 3);
+  EXPECT_EQ(st["frames"][0]["non_finite"], 0);
+  EXPECT_NE(st["notes"].dump().find("576 samples had a squared radiance above 2e+31"), std::string::npos)
+      << st["notes"];
+  EXPECT_NE(r.out.find("note: 576 samples had a squared radiance"), std::string::npos) << r.out;
+}
+
 TEST_F(Cli, HelpParamsNeedsNoScene) {
   auto r = run("render --help-params");
   ASSERT_EQ(r.code, 0) << r.out;

@@ -65,6 +65,12 @@ const uint OUT_L = 0u, OUT_DEPTH = 3u, OUT_VOL = 4u, OUT_VPDEPTH = 7u, OUT_SURF 
 const uint OUT_VAR = 12u, OUT_DEMOD = 16u, OUT_DEMOD_M2 = 20u;
 const uint OUT_STRIDE = 24u;
 
+// Counters of one frame (the binding "counters", uint each): samples whose radiance was not finite (dropped,
+// counted as zero samples), and samples with a square clamped at SQUARE_MAX so that the sums of squares of
+// 2^24 samples stay finite in float (the second moments of such pixels are then lower bounds).
+const uint COUNT_NON_FINITE = 0u, COUNT_CLAMPED_SQUARES = 1u, COUNTERS = 4u;
+const float SQUARE_MAX = 2.0e31;  // FLT_MAX / 2^24
+
 #ifndef __cplusplus
 // The frame's scene block, in every kernel that declares the binding "scene".
 #ifdef BINDING_scene

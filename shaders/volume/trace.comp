@@ -28,6 +28,9 @@ PIXEL_LAYER(acc_surf2);
 PIXEL_LAYER(acc_demod);
 PIXEL_LAYER(acc_demod2);
 PIXEL_LAYER(acc_vp);
+layout(std430, binding = BINDING_counters) buffer Counters {
+  uint counters[];  // COUNT_*
+};
 
 #include "lights/lights.glsl"
 #include "volume/medium.glsl"
@@ -62,6 +65,13 @@ uint guide_slot(vec2 g, inout uint rng) {
   return (uint(v.y) * scene.guide_grid.x + uint(v.x)) * K + min(uint(rng_next(rng) * float(K)), K - 1u);
 }
 #endif
+
+// x², capped at SQUARE_MAX (an overflow to Inf included); `clamped` tells whether any component was.
+vec3 square_capped(vec3 x, inout bool clamped) {
+  vec3 s = x * x;
+  clamped = clamped || any(greaterThan(s, vec3(SQUARE_MAX)));
+  return min(s, vec3(SQUARE_MAX));
+}
 
 // Offset of ray origins off a surface, relative to the scene's scale at that point.
 float surface_epsilon(vec3 x) {
@@ -393,14 +403,17 @@ void main() {
     L_vol = vec3(0.0f);
     L_surf = vec3(0.0f);
     demod = vec3(0.0f);
+    atomicAdd(counters[COUNT_NON_FINITE], 1u);
   }
+  bool clamped = false;
   acc_l[pixel] += vec4(L, T_surf);
-  acc_l2[pixel] += vec4(L * L, T_surf * T_surf);
+  acc_l2[pixel] += vec4(square_capped(L, clamped), T_surf * T_surf);
   acc_vol[pixel] += vec4(L_vol, t_s < T_INF * 0.5f ? t_s : 0.0f);
-  acc_vol2[pixel] += vec4(L_vol * L_vol, 0.0f);
+  acc_vol2[pixel] += vec4(square_capped(L_vol, clamped), 0.0f);
   acc_surf[pixel] += vec4(L_surf, 0.0f);
-  acc_surf2[pixel] += vec4(L_surf * L_surf, 0.0f);
+  acc_surf2[pixel] += vec4(square_capped(L_surf, clamped), 0.0f);
   acc_demod[pixel] += vec4(demod, 0.0f);
-  acc_demod2[pixel] += vec4(demod * demod, 0.0f);
+  acc_demod2[pixel] += vec4(square_capped(demod, clamped), 0.0f);
+  if (clamped) atomicAdd(counters[COUNT_CLAMPED_SQUARES], 1u);
   acc_vp[pixel] += vec4(vp_wt, vp_w, vp_g, vp_gn);
 }
