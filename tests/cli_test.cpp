@@ -365,6 +365,33 @@ TEST_F(Cli, OutputThatIsADirectoryIsRefusedUpFront) {
   expect_no_temporaries(dir / "out");
 }
 
+// A corrupt count or length in a .vdb (the grid's metadata count at 0x80, the first name's length at 0x84)
+// gives a one-line error in bounded memory and time; before, OpenVDB allocated until the machine ran out.
+TEST_F(Cli, CorruptVdbHeaderIsBoundedAndNamed) {
+  const fs::path good = dir / "box.vdb";
+  ASSERT_EQ(run(fmt::format("vdb make box --out {} --voxel-size 0.1 --size 1 1 1", good.string())).code, 0);
+  for (int offset : {0x80, 0x84}) {
+    const fs::path bad = dir / fmt::format("bad_{:x}.vdb", offset);
+    std::string bytes = file_bytes(good);
+    ASSERT_GT(bytes.size(), size_t(offset + 4));
+    bytes.replace(size_t(offset), 4, "\xff\xff\xff\xff");
+    std::ofstream(bad, std::ios::binary) << bytes;
+    // 1 GB of address space and 60 s: far more than a 76 kB file needs, far less than the corrupt length.
+    const int rc =
+        std::system(fmt::format("bash -c 'ulimit -v 1000000; timeout 60 {} vdb info {} > {}/info.log 2>&1'",
+                                HAZE_BIN, bad.string(), dir.string())
+                        .c_str());
+    const Result r{WEXITSTATUS(rc), file_bytes(dir / "info.log")};
+    expect_one_line_error(r, bad.string() + ": corrupt .vdb: reading it asked for");
+    EXPECT_NE(WEXITSTATUS(rc), 124) << "timed out";
+    const std::string scene = write("corrupt.json", fmt::format(R"({{"media": [{{"file": "{}"}}],
+        "lights": {{"sun": {{}}}}, "render": {{"width": 8, "height": 8, "spp": 1}}}})",
+                                                                bad.string()));
+    expect_one_line_error(run(fmt::format("render {} --out {}", scene, (dir / "out").string())),
+                          bad.string() + ": corrupt .vdb");
+  }
+}
+
 TEST_F(Cli, VdbMakeAndInfo) {
   std::string f = (dir / "cloud.vdb").string();
   auto m = run(fmt::format("vdb make cloud --out {} --voxel-size 0.1 --size 2 2 2 --seed 4", f));

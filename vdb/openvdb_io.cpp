@@ -18,6 +18,7 @@
 #include <filesystem>
 #include <mutex>
 
+#include "vdb/alloc_budget.hpp"
 #include "vdb/vdb.h"
 
 namespace haze::vdb {
@@ -64,6 +65,32 @@ void world_bbox(const openvdb::math::Transform& xf, const openvdb::CoordBBox& b,
   }
 }
 
+// What reading `path` may allocate: no single block beyond the file's size (and 64 MiB), and in all no more
+// than 64 times the file (and 256 MiB): a .vdb's in-memory grids are a few times its compressed size.
+struct ReadBudget {
+  uint64_t file_bytes;
+  AllocationBudget budget;
+  explicit ReadBudget(uint64_t bytes)
+      : file_bytes(bytes), budget(std::max<uint64_t>(64ull << 20, 2 * bytes), (256ull << 20) + 64 * bytes) {}
+};
+
+// The one-line error for a read that the budget stopped.
+Error over_budget(const std::string& path, const ReadBudget& b) {
+  if (!b.budget.total_reached())
+    return Error(fmt::format("{}: corrupt .vdb: reading it asked for {} bytes at once, more than a file of {} bytes "
+                             "can need; re-export it",
+                             path, b.budget.refused(), b.file_bytes));
+  return Error(fmt::format("{}: corrupt .vdb: reading it asked for more than {} bytes in all, far more than a file "
+                           "of {} bytes can need; re-export it",
+                           path, b.budget.total(), b.file_bytes));
+}
+
+uint64_t file_size(const std::string& path) {
+  std::error_code ec;
+  const auto n = fs::file_size(path, ec);
+  return ec ? 0 : uint64_t(n);
+}
+
 std::unique_ptr<openvdb::io::File> open_file(const std::string& path) {
   init_openvdb();
   std::error_code ec;
@@ -71,8 +98,11 @@ std::unique_ptr<openvdb::io::File> open_file(const std::string& path) {
   if (!fs::is_regular_file(path, ec))
     throw Error(fmt::format("{}: not a regular file; give a .vdb file", path));
   auto file = std::make_unique<openvdb::io::File>(path);
+  ReadBudget budget(file_size(path));
   try {
     file->open(/*delayLoad=*/false);  // no memory mapping: the file may be replaced while we hold grids
+  } catch (const std::bad_alloc&) {
+    throw over_budget(path, budget);
   } catch (const std::exception& e) {
     throw Error(fmt::format("{}: not a readable VDB file ({}); check that it is an OpenVDB .vdb file", path,
                             one_line(e.what())));
@@ -206,7 +236,14 @@ std::vector<GridInfo> inspect(const std::string& path) {
   auto file = open_file(path);
   openvdb::GridPtrVecPtr grids;
   try {
-    grids = file->getGrids();
+    ReadBudget budget(file_size(path));
+    try {
+      grids = file->getGrids();
+    } catch (const std::bad_alloc&) {
+      throw over_budget(path, budget);
+    }
+  } catch (const Error&) {
+    throw;
   } catch (const std::exception& e) {
     throw Error(
         fmt::format("{}: cannot read grids ({}); the file may be corrupt or use a grid type OpenVDB {} "
@@ -250,7 +287,14 @@ DeviceGrid load_grid(const std::string& path, const std::string& grid_name, NanP
         names.empty() ? std::string("none") : fmt::format("'{}'", fmt::join(names, "', '"))));
   openvdb::GridBase::Ptr base;
   try {
-    base = file->readGrid(grid_name);
+    ReadBudget budget(file_size(path));
+    try {
+      base = file->readGrid(grid_name);
+    } catch (const std::bad_alloc&) {
+      throw over_budget(path, budget);
+    }
+  } catch (const Error&) {
+    throw;
   } catch (const std::exception& e) {
     throw Error(fmt::format("{}: cannot read grid '{}' ({}); the file may be corrupt", path, grid_name,
                             one_line(e.what())));
