@@ -62,6 +62,17 @@ void expect_one_line_error(const Result& r, const std::string& needle) {
   }
 }
 
+std::string file_bytes(const fs::path& p) {
+  std::ifstream f(p, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(f), {});
+}
+
+// No temporary of this or a killed run is left in `d`.
+void expect_no_temporaries(const fs::path& d) {
+  for (const auto& e : fs::directory_iterator(d))
+    EXPECT_EQ(e.path().filename().string().find(".tmp"), std::string::npos) << e.path();
+}
+
 // Permutations are compiled on demand into the --shader-cache folder: the first run compiles, the second
 // takes every kernel from the cache; an unusable folder is one warning, never a failure.
 TEST_F(Cli, ShaderCacheCompilesOnceThenHits) {
@@ -315,17 +326,6 @@ TEST_F(Cli, FailedRunLeavesExistingOutputsIntact) {
   EXPECT_EQ(ss.str(), "precious");
   // And nothing temporary is left behind.
   for (const auto& e : fs::directory_iterator(dir / "out")) EXPECT_EQ(e.path().filename(), "frame_0000.exr");
-}
-
-std::string file_bytes(const fs::path& p) {
-  std::ifstream f(p, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(f), {});
-}
-
-// No temporary of this or a killed run is left in `d`.
-void expect_no_temporaries(const fs::path& d) {
-  for (const auto& e : fs::directory_iterator(d))
-    EXPECT_EQ(e.path().filename().string().find(".tmp"), std::string::npos) << e.path();
 }
 
 // A run that fails part-way (a VDB sequence whose second file is truncated) replaces none of the folder's

@@ -77,12 +77,14 @@ struct ReadBudget {
 // The one-line error for a read that the budget stopped.
 Error over_budget(const std::string& path, const ReadBudget& b) {
   if (!b.budget.total_reached())
-    return Error(fmt::format("{}: corrupt .vdb: reading it asked for {} bytes at once, more than a file of {} bytes "
-                             "can need; re-export it",
-                             path, b.budget.refused(), b.file_bytes));
-  return Error(fmt::format("{}: corrupt .vdb: reading it asked for more than {} bytes in all, far more than a file "
-                           "of {} bytes can need; re-export it",
-                           path, b.budget.total(), b.file_bytes));
+    return Error(
+        fmt::format("{}: corrupt .vdb: reading it asked for {} bytes at once, more than a file of {} bytes "
+                    "can need; re-export it",
+                    path, b.budget.refused(), b.file_bytes));
+  return Error(
+      fmt::format("{}: corrupt .vdb: reading it asked for more than {} bytes in all, far more than a file "
+                  "of {} bytes can need; re-export it",
+                  path, b.budget.total(), b.file_bytes));
 }
 
 uint64_t file_size(const std::string& path) {
@@ -321,11 +323,21 @@ void write_procedural(const ProceduralSpec& spec, const std::string& out_path) {
     openvdb::io::File file(tmp);
     file.write({grid});
     file.close();
+    // OpenVDB does not check its stream: a full disk leaves a short file. Read it back before it counts.
+    try {
+      openvdb::io::File check(tmp);
+      check.open(false);
+      if (!check.readGrid(grid->getName())) throw std::runtime_error("no grid");
+    } catch (const std::exception& e) {
+      throw std::runtime_error(
+          fmt::format("the file does not read back whole, OpenVDB says '{}'", one_line(e.what())));
+    }
   } catch (const std::exception& e) {
     std::error_code ec;
     fs::remove(tmp, ec);
-    throw Error(fmt::format("{}: cannot write ({}); check that the directory exists and is writable",
-                            out_path, one_line(e.what())));
+    throw Error(
+        fmt::format("{}: cannot write ({}); check that the disk has room and the directory is writable",
+                    out_path, one_line(e.what())));
   }
   std::error_code ec;
   fs::rename(tmp, out_path, ec);
