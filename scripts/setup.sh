@@ -17,7 +17,7 @@ PACKAGES=(
   # math, images, CLI, formats, logging
   libglm-dev libopenexr-dev libcli11-dev nlohmann-json3-dev libfmt-dev
   # tests and benchmarks
-  libgtest-dev libgmock-dev libbenchmark-dev
+  libgtest-dev
   # `haze report`: figures (matplotlib), and the test that opens the report in headless Chromium
   python3-matplotlib python3-numpy chromium
 )

@@ -2,6 +2,7 @@
 #pragma once
 
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <filesystem>
 #include <fstream>
@@ -14,7 +15,7 @@ class TempDir {
   explicit TempDir(const std::string& prefix) {
     const auto* ut = ::testing::UnitTest::GetInstance();
     path_ = std::filesystem::temp_directory_path() /
-            (prefix + "_" + std::to_string(ut->random_seed()) + "_" + ut->current_test_info()->name());
+            (prefix + "_" + std::to_string(::getpid()) + "_" + ut->current_test_info()->name());
     std::filesystem::remove_all(path_);
     std::filesystem::create_directories(path_);
   }

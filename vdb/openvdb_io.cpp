@@ -315,19 +315,21 @@ DeviceGrid make_procedural(const ProceduralSpec& spec) {
   return to_device(*grid, fmt::format("procedural {}", spec.kind), NanPolicy::Error);
 }
 
-void write_procedural(const ProceduralSpec& spec, const std::string& out_path) {
-  auto grid = build_procedural(spec);
-  // Write beside the target and rename, so readers never see a half-written file.
+namespace {
+
+// Writes beside the target and renames, so readers never see a half-written file.
+void write_file(const openvdb::GridPtrVec& grids, const std::string& out_path) {
   const std::string tmp = fmt::format("{}.tmp{}", out_path, ::getpid());
   try {
     openvdb::io::File file(tmp);
-    file.write({grid});
+    file.write(grids);
     file.close();
     // OpenVDB does not check its stream: a full disk leaves a short file. Read it back before it counts.
     try {
       openvdb::io::File check(tmp);
       check.open(false);
-      if (!check.readGrid(grid->getName())) throw std::runtime_error("no grid");
+      for (const auto& g : grids)
+        if (!check.readGrid(g->getName())) throw std::runtime_error("no grid " + g->getName());
     } catch (const std::exception& e) {
       throw std::runtime_error(
           fmt::format("the file does not read back whole, OpenVDB says '{}'", one_line(e.what())));
@@ -346,6 +348,54 @@ void write_procedural(const ProceduralSpec& spec, const std::string& out_path) {
     fs::remove(tmp, ec);
     throw Error(fmt::format("{}: cannot rename the temporary file into place ({})", out_path, why));
   }
+}
+
+openvdb::math::Transform::Ptr to_transform(const glm::dmat4& m, const std::string& where) {
+  openvdb::math::Mat4d o;
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j) o(i, j) = m[i][j];  // see to_glm
+  try {
+    return openvdb::math::Transform::createLinearTransform(o);
+  } catch (const std::exception& e) {
+    throw Error(
+        fmt::format("{}: index_to_world is not an invertible affine map ({})", where, one_line(e.what())));
+  }
+}
+
+template <typename GridT, typename F>
+typename GridT::Ptr voxel_grid(const VoxelGrid& v, F&& value) {
+  auto grid = GridT::create(value(glm::vec3(v.background)));
+  grid->setName(v.name);
+  grid->setTransform(to_transform(v.index_to_world, v.name));
+  auto acc = grid->getAccessor();
+  for (const auto& [ijk, x] : v.voxels) acc.setValue(openvdb::Coord(ijk.x, ijk.y, ijk.z), value(x));
+  return grid;
+}
+
+}  // namespace
+
+void write_procedural(const ProceduralSpec& spec, const std::string& out_path) {
+  write_file({build_procedural(spec)}, out_path);
+}
+
+void write_grids(const std::vector<VoxelGrid>& grids, const std::string& out_path) {
+  init_openvdb();
+  openvdb::GridPtrVec out;
+  for (const VoxelGrid& v : grids) {
+    if (v.type == "float" || v.type == "half") {
+      auto g = voxel_grid<openvdb::FloatGrid>(v, [](glm::vec3 x) { return x.x; });
+      g->setSaveFloatAsHalf(v.type == "half");
+      if (v.fog_volume) g->setGridClass(openvdb::GRID_FOG_VOLUME);
+      out.push_back(g);
+    } else if (v.type == "vec3s") {
+      out.push_back(
+          voxel_grid<openvdb::Vec3SGrid>(v, [](glm::vec3 x) { return openvdb::Vec3s(x.x, x.y, x.z); }));
+    } else {
+      throw Error(fmt::format("{}: grid '{}' has type '{}'; write_grids writes float, half or vec3s",
+                              out_path, v.name, v.type));
+    }
+  }
+  write_file(out, out_path);
 }
 
 }  // namespace haze::vdb

@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace haze::vdb {
@@ -80,6 +81,19 @@ double procedural_value(const ProceduralSpec& spec, glm::dvec3 world);
 DeviceGrid make_procedural(const ProceduralSpec& spec);  // grid name "density"
 // Writes a .vdb with one float fog-volume grid "density" (to a temporary file, then renamed).
 void write_procedural(const ProceduralSpec& spec, const std::string& out_path);
+
+// A grid given voxel by voxel (for scripted inputs and tests): float, half (float stored as half) or vec3s
+// (scalar types use value.x). Voxels not listed hold the background.
+struct VoxelGrid {
+  std::string name = "density";
+  std::string type = "float";
+  bool fog_volume = false;       // grid class "fog volume" (else "unknown")
+  glm::dmat4 index_to_world{1};  // affine; world = M * (i,j,k,1)
+  float background = 0;
+  std::vector<std::pair<glm::ivec3, glm::vec3>> voxels;
+};
+// Writes the grids to one .vdb file (to a temporary file, read back, then renamed).
+void write_grids(const std::vector<VoxelGrid>& grids, const std::string& out_path);
 
 // World-space majorant grid over several media. Conservative for trilinear interpolation at voxel centres:
 // each cell holds >= scale * max of every voxel (active or not) whose trilinear support (+-1 voxel) overlaps
