@@ -13,10 +13,6 @@
 namespace haze::surfaces {
 namespace {
 
-bool finite(glm::vec3 v) {
-  return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
-}
-
 // Build-time tree in Embree's thread-local memory (freed with the RTCBVH). The callbacks run on several
 // threads but each touches only the node it is given.
 struct BuildNode {

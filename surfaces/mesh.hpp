@@ -11,6 +11,11 @@
 
 namespace haze::surfaces {
 
+// Every component finite (vertices with NaN or Inf are dropped with their triangles, and counted).
+inline bool finite(glm::vec3 v) {
+  return !glm::any(glm::isnan(v)) && !glm::any(glm::isinf(v));
+}
+
 // Indexed triangles, counter-clockwise seen from the side the normals point to.
 struct Mesh {
   std::vector<glm::vec3> positions;
