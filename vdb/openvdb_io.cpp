@@ -362,13 +362,12 @@ openvdb::math::Transform::Ptr to_transform(const glm::dmat4& m, const std::strin
   }
 }
 
-template <typename GridT, typename F>
-typename GridT::Ptr voxel_grid(const VoxelGrid& v, F&& value) {
-  auto grid = GridT::create(value(glm::vec3(v.background)));
+openvdb::FloatGrid::Ptr voxel_grid(const VoxelGrid& v) {
+  auto grid = openvdb::FloatGrid::create(v.background);
   grid->setName(v.name);
   grid->setTransform(to_transform(v.index_to_world, v.name));
   auto acc = grid->getAccessor();
-  for (const auto& [ijk, x] : v.voxels) acc.setValue(openvdb::Coord(ijk.x, ijk.y, ijk.z), value(x));
+  for (const auto& [ijk, x] : v.voxels) acc.setValue(openvdb::Coord(ijk.x, ijk.y, ijk.z), x);
   return grid;
 }
 
@@ -383,16 +382,13 @@ void write_grids(const std::vector<VoxelGrid>& grids, const std::string& out_pat
   openvdb::GridPtrVec out;
   for (const VoxelGrid& v : grids) {
     if (v.type == "float" || v.type == "half") {
-      auto g = voxel_grid<openvdb::FloatGrid>(v, [](glm::vec3 x) { return x.x; });
+      auto g = voxel_grid(v);
       g->setSaveFloatAsHalf(v.type == "half");
       if (v.fog_volume) g->setGridClass(openvdb::GRID_FOG_VOLUME);
       out.push_back(g);
-    } else if (v.type == "vec3s") {
-      out.push_back(
-          voxel_grid<openvdb::Vec3SGrid>(v, [](glm::vec3 x) { return openvdb::Vec3s(x.x, x.y, x.z); }));
     } else {
-      throw Error(fmt::format("{}: grid '{}' has type '{}'; write_grids writes float, half or vec3s",
-                              out_path, v.name, v.type));
+      throw Error(fmt::format("{}: grid '{}' has type '{}'; write_grids writes float or half", out_path,
+                              v.name, v.type));
     }
   }
   write_file(out, out_path);

@@ -82,15 +82,15 @@ DeviceGrid make_procedural(const ProceduralSpec& spec);  // grid name "density"
 // Writes a .vdb with one float fog-volume grid "density" (to a temporary file, then renamed).
 void write_procedural(const ProceduralSpec& spec, const std::string& out_path);
 
-// A grid given voxel by voxel (for scripted inputs and tests): float, half (float stored as half) or vec3s
-// (scalar types use value.x). Voxels not listed hold the background.
+// A scalar grid given voxel by voxel (for scripted inputs and tests): float, or half (float stored as half).
+// Voxels not listed hold the background. (No vector types: each grid type costs 12 s of compile time.)
 struct VoxelGrid {
   std::string name = "density";
   std::string type = "float";
   bool fog_volume = false;       // grid class "fog volume" (else "unknown")
   glm::dmat4 index_to_world{1};  // affine; world = M * (i,j,k,1)
   float background = 0;
-  std::vector<std::pair<glm::ivec3, glm::vec3>> voxels;
+  std::vector<std::pair<glm::ivec3, float>> voxels;
 };
 // Writes the grids to one .vdb file (to a temporary file, read back, then renamed).
 void write_grids(const std::vector<VoxelGrid>& grids, const std::string& out_path);
