@@ -193,7 +193,14 @@ json report_data(const std::string& dir, const ReportOptions& o) {
     g["pareto"] = front;
   }
   json axes = spec.value("axes", json::array());
+  // The layers the rows compared (rows before results named them compared the sweep's layer with R, G, B).
+  json layers = rows.front().value("layers", compared_layers(spec.value("layer", ""), ""));
+  for (const auto& r : rows)
+    if (r.value("layers", layers) != layers)
+      throw render::Error(fmt::format("{}: rows compared different layers ({} and {}); one sweep, one layer",
+                                      dir, layers_text(layers), layers_text(r["layers"])));
   return {{"dir", fs::absolute(d).string()},
+          {"layers", layers},
           {"metric", o.metric},
           {"groups", out},
           {"runs", rows.size()},
@@ -243,13 +250,13 @@ json prepare_images(const json& data, const fs::path& fig, const ReportOptions& 
     const size_t pixels = size_t(W) * H;
     const int k = int(cols.size());
     const std::string png = (fig / fmt::format("column_{}.png", k)).string();
-    render::write_png_rgba8(png, W, H, preview(x.data, pixels));
+    render::write_png_rgb8(png, W, H, preview(x.data, pixels));
     json col = {{"label", (*g)["short"]}, {"png", png}};
     if (g->contains("reference_image")) {
-      LayerImage r = read_layer((*g)["reference_image"].get<std::string>(), "");
+      LayerImage r = read_layer((*g)["reference_image"].get<std::string>(), layer);
       if (ref_path.empty()) {
         ref_path = (fig / "reference.png").string();
-        render::write_png_rgba8(ref_path, W, H, preview(r.data, pixels));
+        render::write_png_rgb8(ref_path, W, H, preview(r.data, pixels));
       }
       // Per-pixel relMSE, the mean over R, G, B.
       std::vector<float> e(pixels);
@@ -346,11 +353,10 @@ std::string write_report(const std::string& dir, const ReportOptions& o) {
   if (sw.contains("reference") && sw["reference"].is_object())
     h += fmt::format(
         "<p>Errors against a reference rendered until {}% of the pixels have a relative standard "
-        "error below {} (at most {} spp), compared on layer <code>{}</code>. Time is the GPU time "
+        "error below {} (at most {} spp), compared as <code>{}</code>. Time is the GPU time "
         "of all passes per frame (timestamps), averaged over seeds.</p>\n",
         sw["reference"]["quantile"].get<double>() * 100, fmt_number(sw["reference"]["target"]),
-        sw["reference"]["max_spp"].get<int>(),
-        sw.value("layer", "").empty() ? "R, G, B" : html_escape(sw.value("layer", "")));
+        sw["reference"]["max_spp"].get<int>(), html_escape(layers_text(data["layers"])));
   auto figure = [&](const std::string& name, const std::string& caption) {
     if (std::find(made.begin(), made.end(), name) == made.end()) return;
     h += fmt::format(

@@ -6,6 +6,7 @@
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 #include <signal.h>
+#include <stb/stb_image.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -311,6 +312,75 @@ TEST(Reference, ConvergesToItsTargetAndIsCached) {
   r = run(fmt::format("reference {} --out {} --set haze.sigma_t=0.5", scene.string(), out));
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.out.find("holds the reference of another scene"), std::string::npos) << r.out;
+  // A PNG preview beside the EXR; rendered guided (the scene has a medium and a light).
+  int w = 0, h = 0, channels = 0;
+  EXPECT_TRUE(stbi_info(haze::eval::reference_png_path(out, 0).c_str(), &w, &h, &channels));
+  EXPECT_EQ(channels, 3);
+  EXPECT_EQ(info["frames"]["0"].count("note"), 0u);
+}
+
+// A budget too small for the target: the reference says so, with its figures, in the terminal and in
+// reference.json; the checks aim at the target instead of doubling past it.
+TEST(Reference, SaysWhenItDidNotConverge) {
+  TempDir t("haze-ref");
+  const fs::path scene = t.write("scene.json", kScene);
+  const std::string out = (t.path() / "ref").string();
+  Result r =
+      run(fmt::format("reference {} --out {} --target 0.001 --min-spp 4 --max-spp 16", scene.string(), out));
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_NE(r.out.find("note: reference frame 0 did not converge: error "), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("after 16 spp"), std::string::npos) << r.out;
+  json info = json::parse(std::ifstream(fs::path(out) / "reference.json"));
+  EXPECT_FALSE(info["frames"]["0"]["converged"].get<bool>());
+  EXPECT_NE(info["frames"]["0"]["note"].get<std::string>().find("raise max_spp"), std::string::npos);
+  haze::eval::ReferenceOptions o;
+  o.target = 0.05;
+  o.max_spp = 10000;
+  EXPECT_EQ(haze::eval::next_check_spp(64, 0.1, o), 256);      // 4x at most
+  EXPECT_EQ(haze::eval::next_check_spp(64, 0.06, o), 102);     // 1.1 * 64 * 1.44 = 101.4
+  EXPECT_EQ(haze::eval::next_check_spp(64, 0.051, o), 74);     // close: 10% over
+  EXPECT_EQ(haze::eval::next_check_spp(5000, 0.1, o), 10000);  // the budget caps it
+}
+
+// A layer is compared with the same layer of the reference: the sweep's figures are those of `haze compare
+// --layer` on the run's saved frame and its reference (which fail if the sweep read another layer of either
+// side), the row names both layers, and a reference holds the denoised layers a denoised run is compared on.
+TEST(Sweep, ComparesALayerWithTheSameLayerOfTheReference) {
+  TempDir t("haze-sweep");
+  json scene = json::parse(kScene);
+  scene["surfaces"] =
+      json::parse(R"([{"mesh": {"kind": "plane", "size": [20, 20]}, "albedo": [0.7, 0.7, 0.7]}])");
+  t.write("scene.json", scene.dump());
+  const fs::path sweep = t.write("s.json", R"({"scene": "scene.json", "seeds": [3], "layer": "volume",
+    "reference": {"target": 0.1, "min_spp": 16, "max_spp": 64}})");
+  const fs::path out = t.path() / "out";
+  Result r = run(fmt::format("sweep {} --out {}", sweep.string(), out.string()));
+  ASSERT_EQ(r.code, 0) << r.out;
+  const auto rows = lines(out / "results.jsonl");
+  ASSERT_EQ(rows.size(), 1u);
+  const json row = json::parse(rows[0]);
+  EXPECT_EQ(row["layers"], json({{"test", "volume"}, {"reference", "volume"}}));
+  const std::string test_exr = (out / row["images"][0].get<std::string>()).string();
+  const std::string ref_exr =
+      haze::eval::reference_frame_path((out / row["reference"].get<std::string>()).string(), 0);
+  for (const char* layer : {"volume", "", "denoised", "volume_denoised"}) {
+    r = run(fmt::format("compare {} {} --json{}", ref_exr, test_exr,
+                        *layer ? std::string(" --layer ") + layer : ""));
+    ASSERT_EQ(r.code, 0) << layer << ": " << r.out;
+    const json c = json::parse(r.out);
+    EXPECT_EQ(c["layers"], json({{"test", layer}, {"reference", layer}}));
+    const double relmse = c["mean"]["relmse"].get<double>();
+    if (std::string(layer) == "volume")
+      EXPECT_NEAR(row["metrics"]["relmse"].get<double>(), relmse, 1e-6 * relmse) << r.out;
+    else if (std::string(layer) == "")  // the plane makes R, G, B another image than the volume term
+      EXPECT_GT(std::abs(row["metrics"]["relmse"].get<double>() - relmse), 1e-3 * relmse) << r.out;
+  }
+  r = run(fmt::format("compare {} {} --layer volume", ref_exr, test_exr));
+  EXPECT_NE(r.out.find("test layer volume, reference layer volume"), std::string::npos) << r.out;
+  // The reference's denoised stand-in is its noisy composite.
+  const auto ref = haze::render::read_exr(ref_exr);
+  EXPECT_EQ(ref.channel("denoised.G"), ref.channel("G"));
+  EXPECT_EQ(ref.channel("volume_denoised.R"), ref.channel("volume.R"));
 }
 
 // Kills a sweep after its first finished run, tears the last row as a kill mid-write would, and runs the
