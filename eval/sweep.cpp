@@ -679,6 +679,7 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
         row["per_frame"] = per_frame;
       }
       row["images"] = images;
+      row["preview"] = {{"exposure", s.render.exposure}, {"tonemap", s.render.tonemap}};  // for the report
       row["notes"] = rs.notes;
       append_line(jsonl, row.dump());
       rows.push_back(row);

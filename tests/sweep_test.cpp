@@ -21,6 +21,7 @@
 #include <thread>
 
 #include "eval/reference.hpp"
+#include "eval/report.hpp"
 #include "haze_cli.hpp"
 #include "render/output.hpp"
 #include "temp_dir.hpp"
@@ -275,6 +276,84 @@ TEST(SweepFile, CountsNonFiniteValuesInEveryLayer) {
   auto bad = img;
   bad.gbuffer[haze::glsl::G_MOTION] = -INFINITY;
   EXPECT_GE(haze::eval::count_nonfinite(bad), 1u);
+}
+
+// The equal-time table on constructed results: two settings whose error falls as 1/time (B twice A's error
+// at equal time for seed 1, 2.2 times for seed 2) over a spp axis, and a third whose times overlap neither.
+TEST(Report, EqualTimeTableOnConstructedResults) {
+  auto row = [](bool guided, int spp, int seed, double ms, double relmse) {
+    json settings = {{"guiding.enabled", guided},
+                     {"guiding.probability", 0.5},
+                     {"render.spp", spp},
+                     {"render.seed", seed}};
+    return json{{"run", fmt::format("{}-{}-{}", guided, spp, seed)},
+                {"index", 0},
+                {"settings", settings},
+                {"frames", "0:0"},
+                {"samples", spp},
+                {"time", {{"gpu_ms_per_frame", ms}}},
+                {"passes", {{"trace", {{"ms_per_frame", ms}}}}},
+                {"memory", {{"total", 1e6}, {"peak", 1e6}, {"per_category", {{"outputs", 1e6}}}}},
+                {"metrics", {{"relmse", relmse}}},
+                {"nonfinite", 0},
+                {"images", json::array()},
+                {"device", "constructed"}};
+  };
+  std::vector<json> rows;
+  for (int seed : {1, 2})
+    for (int spp : {1, 4, 16}) {
+      const double ta = 10.0 * spp, tb = 12.0 * spp;
+      rows.push_back(row(true, spp, seed, ta, 1.0 / ta));                       // A: guided
+      rows.push_back(row(false, spp, seed, tb, (seed == 1 ? 2.0 : 2.2) / tb));  // B: unguided
+    }
+  const json et = haze::eval::equal_time_table(rows, "relmse");
+  ASSERT_TRUE(et.is_object()) << et.dump();
+  EXPECT_EQ(et["cost_axis"], "render.spp");
+  EXPECT_EQ(et["curves"], json({"guiding.enabled=true, guiding.probability=0.5", "guiding.enabled=false"}));
+  ASSERT_EQ(et["budgets"].size(), 3u);
+  const double budgets[] = {12, std::sqrt(12.0 * 160), 160};  // inside both curves' ranges
+  for (size_t i = 0; i < 3; ++i) {
+    const json& b = et["budgets"][i];
+    EXPECT_NEAR(b["ms"].get<double>(), budgets[i], 1e-9);
+    EXPECT_EQ(b["winner"], "guiding.enabled=true, guiding.probability=0.5");
+    const json& a = b["rows"][0];
+    const json& u = b["rows"][1];
+    EXPECT_NEAR(a["error"].get<double>(), 1.0 / budgets[i], 1e-9);  // a power law interpolates exactly
+    EXPECT_DOUBLE_EQ(a["ratio"].get<double>(), 1.0);
+    EXPECT_NEAR(u["ratio"].get<double>(), 2.1, 1e-9);  // of the seed-mean curves
+    EXPECT_NEAR(u["ratio_mean"].get<double>(), 2.1, 1e-9);
+    EXPECT_NEAR(u["ratio_sd"].get<double>(), 0.2 / std::sqrt(2.0), 1e-9);
+    EXPECT_EQ(u["seeds"], 2);
+    EXPECT_EQ(u["short"], "enabled=false");  // guiding off has no probability
+  }
+  // Settings whose times do not overlap get no budget, and a note that says why.
+  std::vector<json> apart = {row(true, 1, 1, 1, 1), row(true, 4, 1, 2, 0.5), row(false, 1, 1, 10, 1),
+                             row(false, 4, 1, 20, 0.5)};
+  const json none = haze::eval::equal_time_table(apart, "relmse");
+  EXPECT_TRUE(none["budgets"].empty());
+  EXPECT_NE(none["note"].get<std::string>().find("do not overlap"), std::string::npos);
+  EXPECT_TRUE(haze::eval::equal_time_table({rows[0], rows[2]}, "relmse").is_null());  // one curve
+
+  // Through `haze report`: the summary opens the page with the answer, and the table is there.
+  TempDir t("haze-report");
+  std::string text;
+  for (const auto& r : rows) text += r.dump() + "\n";
+  t.write("out/results.jsonl", text);
+  t.write("out/sweep.json", R"({"scene": "demo.json", "reference": {"target": 0.05, "quantile": 0.95,
+    "min_spp": 64, "max_spp": 2048}, "layer": ""})");
+  Result r = run(fmt::format("report {}", (t.path() / "out").string()));
+  ASSERT_EQ(r.code, 0) << r.out;
+  std::ifstream f(t.path() / "out/report.html");
+  const std::string html((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  const size_t summary = html.find("<h2>Summary</h2>");
+  ASSERT_NE(summary, std::string::npos);
+  EXPECT_LT(summary, html.find("<img"));
+  EXPECT_NE(html.find("At equal time, 12 ms per frame: guiding.enabled=true, guiding.probability=0.5 wins "
+                      "with relmse 0.0833; the others' relmse is higher by: enabled=false 2.10x (per seed "
+                      "2.10 ± 0.14, 2 seeds)."),
+            std::string::npos)
+      << html.substr(summary, 1500);
+  EXPECT_NE(html.find("<table id=\"equal-time\">"), std::string::npos);
 }
 
 // --- rendering ------------------------------------------------------------------------------------------
