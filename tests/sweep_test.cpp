@@ -115,6 +115,20 @@ TEST(SweepFile, ExpandsCartesianZipAndEachWithSeeds) {
   EXPECT_EQ(m[2].settings["render.height"], 12);
 }
 
+// docs/workflow.md walks through scenes/guiding.sweep.json: its copy of the file is the shipped one.
+TEST(SweepFile, WorkflowDocShowsTheShippedSweep) {
+  std::ifstream doc_file(std::string(HAZE_SOURCE_DIR) + "/docs/workflow.md");
+  const std::string doc((std::istreambuf_iterator<char>(doc_file)), std::istreambuf_iterator<char>());
+  const size_t at = doc.find("```json\n", doc.find("## A complete example"));
+  ASSERT_NE(at, std::string::npos);
+  const size_t end = doc.find("```", at + 8);
+  const json shown = json::parse(doc.substr(at + 8, end - at - 8));
+  const json shipped =
+      json::parse(std::ifstream(std::string(HAZE_SOURCE_DIR) + "/scenes/guiding.sweep.json"));
+  EXPECT_EQ(shown, shipped);
+  EXPECT_NO_THROW(haze::eval::load_sweep(std::string(HAZE_SOURCE_DIR) + "/scenes/guiding.sweep.json"));
+}
+
 TEST(SweepFile, ShardsCoverEveryRunExactlyOnce) {
   TempDir t("haze-sweep");
   t.write("scene.json", kScene);
