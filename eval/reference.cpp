@@ -305,6 +305,7 @@ json make_reference(gpu::Context& ctx, const scene::Scene& s_in, int first, int 
     info["frames"][fkey] = rf.to_json();
     info["frames"][fkey]["inputs"] = inputs;
     if (!rf.converged) info["frames"][fkey]["note"] = not_converged_note(rf, o);
+    info["frames"][fkey]["features"] = r->stats()["features"];  // "guiding" among them where it applied
     render::write_json(info_path, info);  // after each frame: a killed run keeps the frames it finished
     if (hooks.on_frame) hooks.on_frame(rf, false);
   }

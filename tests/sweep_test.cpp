@@ -410,6 +410,8 @@ TEST(Reference, ConvergesToItsTargetAndIsCached) {
   EXPECT_TRUE(stbi_info(haze::eval::reference_png_path(out, 0).c_str(), &w, &h, &channels));
   EXPECT_EQ(channels, 3);
   EXPECT_EQ(info["frames"]["0"].count("note"), 0u);
+  EXPECT_NE(info["frames"]["0"]["features"].get<std::string>().find("guiding"), std::string::npos)
+      << info["frames"]["0"];
 }
 
 // A budget too small for the target: the reference says so, with its figures, in the terminal and in
@@ -453,6 +455,7 @@ TEST(Sweep, ComparesALayerWithTheSameLayerOfTheReference) {
   ASSERT_EQ(rows.size(), 1u);
   const json row = json::parse(rows[0]);
   EXPECT_EQ(row["layers"], json({{"test", "volume"}, {"reference", "volume"}}));
+  EXPECT_NE(r.out.find("(+ references: "), std::string::npos) << r.out;  // apart from the runs' ETA
   const std::string test_exr = (out / row["images"][0].get<std::string>()).string();
   const std::string ref_exr =
       haze::eval::reference_frame_path((out / row["reference"].get<std::string>()).string(), 0);
@@ -474,6 +477,22 @@ TEST(Sweep, ComparesALayerWithTheSameLayerOfTheReference) {
   const auto ref = haze::render::read_exr(ref_exr);
   EXPECT_EQ(ref.channel("denoised.G"), ref.channel("G"));
   EXPECT_EQ(ref.channel("volume_denoised.R"), ref.channel("volume.R"));
+}
+
+// render.time_budget_s as an axis: each run samples until its budget is spent, and says how many it took.
+TEST(Sweep, TimeBudgetAxis) {
+  TempDir t("haze-sweep");
+  t.write("scene.json", kScene);
+  const fs::path sweep = t.write("s.json", R"({"scene": "scene.json", "seeds": [5], "save_images": "none",
+    "axes": [{"path": "render.time_budget_s", "values": [0.02, 0.3]}]})");
+  Result r = run(fmt::format("sweep {} --out {}", sweep.string(), (t.path() / "out").string()));
+  ASSERT_EQ(r.code, 0) << r.out;
+  const auto rows = lines(t.path() / "out/results.jsonl");
+  ASSERT_EQ(rows.size(), 2u);
+  const json a = json::parse(rows[0]), b = json::parse(rows[1]);
+  EXPECT_GE(a["samples"].get<double>(), 1);
+  EXPECT_GT(b["samples"].get<double>(), 3 * a["samples"].get<double>()) << rows[0] << rows[1];
+  EXPECT_GE(b["time"]["render_s"].get<double>(), 0.3);
 }
 
 // Kills a sweep after its first finished run, tears the last row as a kill mid-write would, and runs the
