@@ -350,6 +350,7 @@ TEST(Report, EqualTimeTableOnConstructedResults) {
 
   // Through `haze report`: the summary opens the page with the answer, and the table is there.
   TempDir t("haze-report");
+  rows[0]["reference_notes"] = {"reference frame 0 did not converge: error 0.103 at quantile 0.99"};
   std::string text;
   for (const auto& r : rows) text += r.dump() + "\n";
   t.write("out/results.jsonl", text);
@@ -368,6 +369,7 @@ TEST(Report, EqualTimeTableOnConstructedResults) {
             std::string::npos)
       << html.substr(summary, 1500);
   EXPECT_NE(html.find("<table id=\"equal-time\">"), std::string::npos);
+  EXPECT_NE(html.find("Caution: 1 reference frame did not converge"), std::string::npos);
 }
 
 // --- rendering ------------------------------------------------------------------------------------------
