@@ -465,6 +465,12 @@ std::vector<std::string> report_summary(const json& data) {
                                 ? fmt::format(", {} against a converged reference ({})",
                                               data["metric"].get<std::string>(), layers_text(data["layers"]))
                                 : ", without a reference (no error metrics)"));
+  if (metrics && data["layers"]["test"] != data["layers"]["reference"])
+    out.push_back(
+        fmt::format("Caution: these rows compared {}, two different images (rows written before "
+                    "haze compared a layer with the same layer); run the sweep again into a new "
+                    "folder.",
+                    layers_text(data["layers"])));
   const json& notes = data["reference_notes"];
   if (!notes.empty())
     out.push_back(

@@ -370,6 +370,15 @@ TEST(Report, EqualTimeTableOnConstructedResults) {
       << html.substr(summary, 1500);
   EXPECT_NE(html.find("<table id=\"equal-time\">"), std::string::npos);
   EXPECT_NE(html.find("Caution: 1 reference frame did not converge"), std::string::npos);
+  EXPECT_EQ(html.find("two different images"), std::string::npos);
+  // Rows from before results named their layers compared the sweep's layer with the reference's R, G, B.
+  t.write("out/sweep.json", R"({"scene": "demo.json", "reference": {"target": 0.05, "quantile": 0.95,
+    "min_spp": 64, "max_spp": 2048}, "layer": "volume"})");
+  const json data = haze::eval::report_data((t.path() / "out").string(), haze::eval::ReportOptions{});
+  EXPECT_EQ(data["layers"], json({{"test", "volume"}, {"reference", ""}}));
+  EXPECT_NE(haze::eval::report_summary(data)[1].find("Caution: these rows compared test layer volume, "
+                                                     "reference R, G, B, two different images"),
+            std::string::npos);
 }
 
 // --- rendering ------------------------------------------------------------------------------------------
