@@ -188,7 +188,8 @@ std::string frame_inputs(const scene::Scene& s, int frame) {
 int next_check_spp(int spp, double error, const ReferenceOptions& o) {
   // e falls as 1/sqrt(n): n (e / target)^2 samples reach the target; 10% more for the estimate's noise,
   // at most 4x per round so that a noisy first estimate cannot overshoot far.
-  const double want = 1.1 * double(spp) * (error / o.target) * (error / o.target);
+  double want = 1.1 * double(spp) * (error / o.target) * (error / o.target);
+  if (!std::isfinite(want)) want = 4.0 * double(spp);  // an infinite or NaN error: the largest step
   const double capped = std::clamp(std::ceil(want), double(spp) + 1, 4.0 * double(spp));
   return int(std::min<double>(capped, o.max_spp));
 }

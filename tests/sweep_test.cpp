@@ -446,6 +446,8 @@ TEST(Reference, SaysWhenItDidNotConverge) {
   EXPECT_EQ(haze::eval::next_check_spp(64, 0.06, o), 102);     // 1.1 * 64 * 1.44 = 101.4
   EXPECT_EQ(haze::eval::next_check_spp(64, 0.051, o), 74);     // close: 10% over
   EXPECT_EQ(haze::eval::next_check_spp(5000, 0.1, o), 10000);  // the budget caps it
+  EXPECT_EQ(haze::eval::next_check_spp(64, INFINITY, o), 256);
+  EXPECT_EQ(haze::eval::next_check_spp(64, NAN, o), 256);
 }
 
 // A layer is compared with the same layer of the reference: the sweep's figures are those of `haze compare
