@@ -133,16 +133,24 @@ nlohmann::json summary_of_stats(const nlohmann::json& st) {
   }
   nlohmann::json memory = st.value("memory", nlohmann::json::object());
   memory.erase("entries");
-  return {
-      {"samples", st.value("samples", 0)}, {"frames", int(frames)}, {"render_s", st.value("render_s", 0.0)},
-      {"gpu_ms_per_frame", gpu},           {"passes", passes},      {"memory", memory}};
+  // A `haze denoise` folder's stats.json has no samples and no render time: left out, not shown as 0.
+  return {{"samples", st.value("samples", nlohmann::json())},
+          {"frames", int(frames)},
+          {"render_s", st.value("render_s", nlohmann::json())},
+          {"gpu_ms_per_frame", gpu},
+          {"passes", passes},
+          {"memory", memory}};
 }
 
 std::string format_summary(const nlohmann::json& s) {
   const int frames = s.value("frames", 1);
+  const nlohmann::json spp = s.value("samples", nlohmann::json()),
+                       render = s.value("render_s", nlohmann::json());
   std::string out =
-      fmt::format("{} spp, {} frame{}, {:.2f} s render, GPU {:.1f} ms per frame\n", s.value("samples", 0),
-                  frames, frames == 1 ? "" : "s", s.value("render_s", 0.0), s.value("gpu_ms_per_frame", 0.0));
+      fmt::format("{}{} frame{}{}, GPU {:.1f} ms per frame\n",
+                  spp.is_number() ? fmt::format("{} spp, ", spp.dump()) : "", frames, frames == 1 ? "" : "s",
+                  render.is_number() ? fmt::format(", {:.2f} s render", render.get<double>()) : "",
+                  s.value("gpu_ms_per_frame", 0.0));
   auto largest = [](const nlohmann::json& obj) {
     std::vector<std::pair<std::string, double>> v;
     for (const auto& [k, x] : obj.items())

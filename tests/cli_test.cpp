@@ -272,6 +272,12 @@ TEST_F(Cli, RenderSummaryStatsAndTonemap) {
   ASSERT_EQ(st.code, 0) << st.out;
   EXPECT_EQ(st.out, summary);
   expect_one_line_error(run("stats " + dir.string()), "no stats.json or results.jsonl");
+  // A `haze denoise` folder: its passes and memory, and no sample count or render time it does not have.
+  ASSERT_EQ(run(fmt::format("denoise {} --out {}/dn", out, dir.string())).code, 0);
+  st = run(fmt::format("stats {}/dn", dir.string()));
+  ASSERT_EQ(st.code, 0) << st.out;
+  EXPECT_EQ(st.out.rfind("1 frame, GPU ", 0), 0u) << st.out;
+  EXPECT_NE(st.out.find("svgf.surface."), std::string::npos) << st.out;
 
   auto png_info = [](const std::string& path) {
     int w = 0, h = 0, n = 0;
