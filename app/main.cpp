@@ -5,6 +5,7 @@
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -34,13 +35,16 @@ struct Progress {
   const char* unit = "spp";
   bool tty = isatty(fileno(stderr));
   std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
-  // "[#####.....] 3/8 runs  12.0s  ETA 20.0s"
-  std::string line(size_t done, size_t total) const {
+  // "[#####.....] 3/8 runs  12.0s  ETA 20.0s". apart_s: time within the elapsed that is not the items'
+  // (a sweep's references): the ETA leaves it out and the line shows it on its own.
+  std::string line(size_t done, size_t total, double apart_s = 0) const {
     double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    double eta = done > 0 ? el / double(done) * double(total - done) : 0;
+    double eta = done > 0 ? std::max(0.0, el - apart_s) / double(done) * double(total - done) : 0;
     size_t w = 30, filled = total > 0 ? w * done / total : w;
-    return fmt::format("[{}{}] {}/{} {}  {:.1f}s  ETA {:.1f}s", std::string(filled, '#'),
-                       std::string(w - filled, '.'), done, total, unit, el, eta);
+    return fmt::format(
+        "[{}{}] {}/{} {}  {:.1f}s  ETA {:.1f}s{}", std::string(filled, '#'), std::string(w - filled, '.'),
+        done, total, unit, el, eta,
+        apart_s > 0 ? fmt::format(" (+ references: {:.1f}s so far, not in the ETA)", apart_s) : "");
   }
   void operator()(int done, int total) const {
     if (!tty) return;
@@ -95,6 +99,7 @@ int run_render(const std::string& scene_path, const std::string& out, const std:
     for (const char* ext : {"exr", "png"})
       if (s.render.wants(ext)) outs.check(frame_name(f, ext));
   if (s.render.wants("stats")) outs.check("stats.json");
+  render::check_part_specs(s);
   gpu::Context ctx(co);
   fmt::print(stderr, "device: {} ({})\n", ctx.device_name(), ctx.driver_info());
   render::FrameLoop loop;
@@ -118,8 +123,9 @@ int run_render(const std::string& scene_path, const std::string& out, const std:
   st["render_s"] = run.render_s;
   if (s.render.wants("stats")) render::write_json(outs.stage("stats.json"), st);
   outs.commit();
-  fmt::print(stderr, "wrote {} ({} frame{}, {} spp, {:.1f} s setup, {:.1f} s render)\n", out,
-             last - first + 1, last > first ? "s" : "", s.render.spp, run.setup_s, run.render_s);
+  fmt::print(stderr, "wrote {} ({} frame{}, {} spp, {:.1f} s setup, {:.1f} s render)\n{}", out,
+             last - first + 1, last > first ? "s" : "", s.render.spp, run.setup_s, run.render_s,
+             render::format_summary(render::summary_of_stats(st)));
   if (ctx.validation_messages() > 0) {
     fmt::print(stderr, "haze: {} Vulkan validation messages\n", ctx.validation_messages());
     return 3;
@@ -136,6 +142,7 @@ int run_reference(const std::string& scene_path, const std::string& out, const s
   scene::Scene s = load_scene(scene_path, sets, size, frames);
   auto [first, last] = scene::frame_range(s);
   render::ensure_writable_dir(out);
+  render::check_part_specs(s);
   gpu::Context ctx(co);
   fmt::print(stderr, "device: {} ({})\n", ctx.device_name(), ctx.driver_info());
   eval::ReferenceHooks hooks;
@@ -147,8 +154,7 @@ int run_reference(const std::string& scene_path, const std::string& out, const s
     if (cached)
       fmt::print(stderr, "frame {}: up to date ({} spp)\n", f.frame, f.spp);
     else if (!f.converged)
-      fmt::print(stderr, "frame {}: sample budget {} spent before the target; raise --max-spp\n", f.frame,
-                 f.spp);
+      fmt::print(stderr, "note: {}\n", eval::not_converged_note(f, o));
   };
   std::unique_ptr<render::Renderer> r;
   nlohmann::json info = eval::make_reference(ctx, s, first, last, out, o, hooks, r);
@@ -178,7 +184,7 @@ int run_sweep(const std::string& file, const std::string& out, const std::string
   const Progress bar{"runs"};
   eval::SweepHooks hooks;
   hooks.log = [&](const std::string& line) { fmt::print(stderr, "{}{}\n", bar.tty ? "\r\033[K" : "", line); };
-  hooks.progress = [&](size_t done, size_t total, const nlohmann::json* row) {
+  hooks.progress = [&](size_t done, size_t total, const nlohmann::json* row, double reference_s) {
     std::string last;
     if (row) {
       last = fmt::format("run {} {:.3g} ms/frame", (*row)["index"].get<size_t>(),
@@ -187,9 +193,10 @@ int run_sweep(const std::string& file, const std::string& out, const std::string
         last += fmt::format(" relMSE {:.3g}", (*row)["metrics"]["relmse"].get<double>());
     }
     if (bar.tty)
-      fmt::print(stderr, "\r\033[K{}  {}{}", bar.line(done, total), last, done == total ? "\n" : "");
+      fmt::print(stderr, "\r\033[K{}  {}{}", bar.line(done, total, reference_s), last,
+                 done == total ? "\n" : "");
     else if (row)
-      fmt::print(stderr, "{}  {}\n", bar.line(done, total), last);
+      fmt::print(stderr, "{}  {}\n", bar.line(done, total, reference_s), last);
   };
   int code = eval::run_sweep(ctx, spec, out, shard, hooks);
   fmt::print(stderr, "wrote {}/results.jsonl and results.csv\n", eval::shard_dir(out, shard));
@@ -305,6 +312,22 @@ int main(int argc, char** argv) {
   report->add_option("--images", rep.max_images, "image columns besides the reference")
       ->check(CLI::Range(1, 24));
 
+  auto* stats = app.add_subcommand(
+      "stats", "samples, time, the most expensive passes and memory per category of an output folder");
+  std::string stats_dir;
+  stats->add_option("dir", stats_dir, "a `haze render` --out folder, a sweep's --out, or its runs/<id>")
+      ->required();
+
+  auto* tm = app.add_subcommand("tonemap", "write one layer of an EXR as an RGB PNG preview");
+  std::string tm_in, tm_layer, tm_out, tm_curve;
+  double tm_exposure = NAN;
+  tm->add_option("input", tm_in, ".exr file")->required();
+  tm->add_option("--layer", tm_layer, "layer (default: R, G, B), e.g. volume, denoised, depth");
+  tm->add_option("--exposure", tm_exposure,
+                 "EV (default: render.exposure of the stats.json beside the EXR, else 0)");
+  tm->add_option("--tonemap", tm_curve, "aces | reinhard | clamp (default: as --exposure, else aces)");
+  tm->add_option("--out", tm_out, "output .png")->required();
+
   auto* vdbcmd = app.add_subcommand("vdb", "make and inspect .vdb files");
   vdbcmd->require_subcommand(1);
   auto* make =
@@ -407,6 +430,14 @@ int main(int argc, char** argv) {
       return 0;
     }
     if (*bench) return haze::bench::run(bo, co);
+    if (*stats) {
+      fmt::print("{}", eval::stats_text(stats_dir));
+      return 0;
+    }
+    if (*tm) {
+      fmt::print("{}", eval::tonemap_exr(tm_in, tm_layer, tm_exposure, tm_curve, tm_out));
+      return 0;
+    }
     if (*cmp) {
       nlohmann::json j = eval::compare_paths(cmp_ref, cmp_test, cmp_layer, cmp_flip_map);
       fmt::print("{}", cmp_json ? j.dump(2) + "\n" : eval::format_comparison(j));

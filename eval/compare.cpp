@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 
 #include "eval/flip.hpp"
 #include "eval/metrics.hpp"
@@ -114,11 +115,24 @@ nlohmann::json write_flip_maps(const std::string& base, int width, int height,
                                const std::pair<std::vector<float>, std::vector<float>>& maps) {
   const std::string exr = base + ".exr", png = base + ".png";
   render::write_exr_channels(exr, width, height, {{"flip_hdr.Y", &maps.first}, {"flip_ldr.Y", &maps.second}});
-  render::write_png_rgba8(png, width, height, magma_rgba8(maps.first));
+  render::write_png_rgb8(png, width, height, magma_rgba8(maps.first));
   return {{"exr", exr}, {"png", png}};
 }
 
 }  // namespace
+
+nlohmann::json compared_layers(const std::string& test_layer, const std::string& ref_layer) {
+  return {{"test", test_layer}, {"reference", ref_layer}};
+}
+
+std::string layer_name(const std::string& layer) {
+  return layer.empty() ? "R, G, B" : "layer " + layer;
+}
+
+std::string layers_text(const nlohmann::json& layers) {
+  return fmt::format("test {}, reference {}", layer_name(layers.value("test", "")),
+                     layer_name(layers.value("reference", "")));
+}
 
 nlohmann::json image_metrics(const Channels& test, const Channels& ref, int width, int height) {
   return metrics_of(test, ref, width, height, nullptr);
@@ -192,6 +206,7 @@ nlohmann::json compare_paths(const std::string& ref, const std::string& test, co
   mean_json["flip_ldr"] = has_flip ? nlohmann::json(sum_flip_ldr / n) : nlohmann::json(nullptr);
   mean_json["flip_hdr"] = has_flip ? nlohmann::json(sum_flip_hdr / n) : nlohmann::json(nullptr);
   nlohmann::json j = {{"layer", layer},
+                      {"layers", compared_layers(layer, layer)},
                       {"channels", r.front().channels},
                       {"size", {r.front().width, r.front().height}},
                       {"frames", frames},
@@ -205,6 +220,45 @@ nlohmann::json compare_paths(const std::string& ref, const std::string& test, co
     j["temporal"] = temporal(tv, rv).to_json();
   }
   return j;
+}
+
+std::string tonemap_exr(const std::string& in, const std::string& layer, double exposure,
+                        const std::string& tonemap, const std::string& out) {
+  if (!fs::exists(in)) throw render::Error(fmt::format("cannot open {}: no such file", in));
+  std::string curve = tonemap, from;
+  if (std::isnan(exposure) || curve.empty()) {
+    from = ", the default: no stats.json beside it";
+    const fs::path stats = fs::path(in).parent_path() / "stats.json";
+    nlohmann::json r = nlohmann::json::object();
+    if (std::ifstream f(stats); f) {
+      nlohmann::json st = nlohmann::json::parse(f, nullptr, false);
+      if (!st.is_discarded() && st.contains("scene"))
+        r = st["scene"].value("render", r), from = ", the scene's from " + stats.string();
+    }
+    if (std::isnan(exposure)) exposure = r.value("exposure", 0.0);
+    if (curve.empty()) curve = r.value("tonemap", "aces");
+  }
+  if (curve != "aces" && curve != "reinhard" && curve != "clamp")
+    throw render::Error(fmt::format("--tonemap {}: not one of aces, reinhard, clamp", curve));
+  LayerImage li = load_layer(in, layer, nullptr, false);
+  const size_t pixels = size_t(li.width) * li.height, n = li.channels.size();
+  std::vector<float> rgb(pixels * 3, 0.f);
+  size_t nonfinite = 0;
+  for (size_t p = 0; p < pixels; ++p)
+    for (size_t c = 0; c < 3; ++c) {
+      const float v = li.data[p * n + (n == 1 ? 0 : c)];
+      if (n == 2 && c == 2) continue;
+      if (!std::isfinite(v)) {
+        nonfinite += n == 1 ? (c == 0) : 1;
+        continue;
+      }
+      rgb[p * 3 + c] = v;
+    }
+  render::write_png_rgb8(out, li.width, li.height, render::preview_srgb8(rgb, float(exposure), curve));
+  std::string line = fmt::format("wrote {} ({} of {}, {} channel{}, {:+g} EV, {}{})\n", out,
+                                 layer_name(layer), in, n, n == 1 ? "" : "s", exposure, curve, from);
+  if (nonfinite) line += fmt::format("note: {} non-finite values (NaN or Inf) drawn black\n", nonfinite);
+  return line;
 }
 
 std::string format_comparison(const nlohmann::json& j) {
@@ -223,10 +277,8 @@ std::string format_comparison(const nlohmann::json& j) {
   if (frames.size() > 1)
     for (const auto& f : frames)
       s += fmt::format("{}: {}\n", f["test"].get<std::string>(), line(f["metrics"]));
-  s += fmt::format(
-      "{}{} ({}, {}x{})\n", frames.size() > 1 ? "mean: " : "", line(j["mean"]),
-      j["layer"].get<std::string>().empty() ? "R, G, B" : "layer " + j["layer"].get<std::string>(),
-      j["size"][0].get<int>(), j["size"][1].get<int>());
+  s += fmt::format("{}{} ({}, {}x{})\n", frames.size() > 1 ? "mean: " : "", line(j["mean"]),
+                   layers_text(j["layers"]), j["size"][0].get<int>(), j["size"][1].get<int>());
   for (const auto& f : frames)
     if (f.contains("flip_map"))
       s += fmt::format("FLIP maps: {} {}\n", f["flip_map"]["exr"].get<std::string>(),

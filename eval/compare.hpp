@@ -30,6 +30,13 @@ LayerImage read_layer(const std::string& path, const std::string& layer, bool re
 // a 2-channel layer, where FLIP has no meaning). LDR-FLIP sees the linear values clamped to [0, 1].
 nlohmann::json image_metrics(const Channels& test, const Channels& ref, int width, int height);
 
+// {"test": test_layer, "reference": ref_layer}: what results and reports record of a comparison, so that
+// both sides are named (haze compares a layer with the same layer only; a test checks they agree).
+nlohmann::json compared_layers(const std::string& test_layer, const std::string& ref_layer);
+// "R, G, B" or "layer NAME", and for a comparison record "test layer X, reference layer Y".
+std::string layer_name(const std::string& layer);
+std::string layers_text(const nlohmann::json& layers);
+
 // ref and test: both .exr files or both folders. layer: "" for R, G, B; else the channels "<layer>.*".
 // Throws a one-line Error naming the file and what to do for a missing file, layer or frame, a size
 // mismatch or non-finite values. flip_map: if not empty, the per-pixel FLIP maps are written there: for
@@ -37,6 +44,13 @@ nlohmann::json image_metrics(const Channels& test, const Channels& ref, int widt
 // folders the folder PATH with <frame>.exr and <frame>.png per frame.
 nlohmann::json compare_paths(const std::string& ref, const std::string& test, const std::string& layer,
                              const std::string& flip_map = "");
+
+// `haze tonemap`: one layer of an EXR as an RGB PNG, through render::preview_srgb8 (3 channels as they are,
+// 1 as grey, 2 as red and green). exposure / tonemap: NaN / "" take the scene's render.exposure and
+// render.tonemap from a stats.json beside `in`, else 0 EV and aces. Non-finite values are drawn black and
+// counted. Returns the line to print.
+std::string tonemap_exr(const std::string& in, const std::string& layer, double exposure,
+                        const std::string& tonemap, const std::string& out);
 
 // One line per image (or frame) and the means, for the terminal.
 std::string format_comparison(const nlohmann::json& j);

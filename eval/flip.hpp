@@ -37,7 +37,7 @@ FlipResult flip_hdr(const Channels& test, const Channels& ref, int width, int he
 // Whether FLIP is defined for images with this many channels (1, or 3 and more).
 bool flip_supports(uint32_t channel_count);
 
-// An error map in [0, 1] as RGBA8 through matplotlib's magma colour map (for write_png_rgba8).
+// An error map in [0, 1] as RGBA8 through matplotlib's magma colour map (for write_png_rgb8).
 std::vector<uint32_t> magma_rgba8(const std::vector<float>& map);
 
 }  // namespace haze::eval

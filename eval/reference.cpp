@@ -73,6 +73,21 @@ std::string file_hash(const std::string& path) {
   return hash;
 }
 
+// Every layer of `img`, and for each denoised layer its noisy stand-in under the denoised name: a converged
+// image has no noise left to remove, so what a denoiser aims for is the noisy layer's converged value.
+void write_reference_frame(const std::string& path, const render::Image& img) {
+  auto planes = render::exr_planes(img);
+  std::vector<std::pair<std::string, const std::vector<float>*>> channels;
+  for (const auto& [name, plane] : planes) channels.emplace_back(name, &plane);
+  for (const auto& [denoised, noisy] : kDenoisedStandIns)
+    for (const auto& [name, plane] : planes) {
+      const size_t dot = name.rfind('.');
+      const std::string layer = dot == std::string::npos ? "" : name.substr(0, dot);
+      if (layer == noisy) channels.emplace_back(denoised + "." + name.substr(dot + 1), &plane);
+    }
+  render::write_exr_channels(path, img.width, img.height, channels);
+}
+
 }  // namespace
 
 std::string hash_key(std::string_view bytes) {
@@ -120,11 +135,16 @@ ReferenceOptions reference_options_from_json(const json& j, const std::string& o
 
 scene::Scene reference_scene(const scene::Scene& s) {
   scene::Scene r = s;
-  r.guiding.enabled = false;
+  // Guiding is unbiased and lowers the variance where light scatters towards the camera; the renderer uses
+  // it only where the scene has a medium and a light. Its default settings, not the scene's: the key ignores
+  // guiding, so every run that shares the reference must get the same one.
+  r.guiding = guiding::GuidingParams{};
+  r.guiding.enabled = true;
   r.denoise.surface.enabled = false;
   r.denoise.volume.enabled = false;
-  r.render.outputs = {"exr"};
+  r.render.outputs = {"exr", "png"};
   r.render.seed = kReferenceSeed;
+  r.render.time_budget_s = 0;  // the reference counts its own samples
   return r;
 }
 
@@ -132,8 +152,9 @@ json reference_identity(const scene::Scene& s, const ReferenceOptions& o) {
   json j = scene::to_json(s);
   j.erase("guiding");
   j.erase("denoise");
-  for (const char* k : {"spp", "seed", "volume_samples", "majorant_resolution", "equiangular_probability",
-                        "rr_threshold", "outputs", "exposure", "tonemap", "frames"})
+  for (const char* k :
+       {"spp", "time_budget_s", "seed", "volume_samples", "majorant_resolution", "equiangular_probability",
+        "rr_threshold", "outputs", "exposure", "tonemap", "frames"})
     j["render"].erase(k);
   // Files by content, so that the key is the same wherever the scene and its files are copied to. A
   // sequence's files are checked per frame instead (frame_inputs), so a longer range extends the reference.
@@ -150,7 +171,7 @@ json reference_identity(const scene::Scene& s, const ReferenceOptions& o) {
     contents("surfaces", i, "file");
     contents("surfaces", i, "albedo_texture");
   }
-  return {{"scene", j}, {"options", o.to_json()}, {"version", 1}};
+  return {{"scene", j}, {"options", o.to_json()}, {"version", 2}};  // 2: frames hold the denoised stand-ins
 }
 
 std::string reference_key(const scene::Scene& s, const ReferenceOptions& o) {
@@ -162,6 +183,27 @@ std::string frame_inputs(const scene::Scene& s, int frame) {
   for (const auto& m : s.media)
     if (scene::is_sequence(m.file)) all += file_hash(scene::frame_file(m.file, frame));
   return hash_key(all);
+}
+
+int next_check_spp(int spp, double error, const ReferenceOptions& o) {
+  // e falls as 1/sqrt(n): n (e / target)^2 samples reach the target; 10% more for the estimate's noise,
+  // at most 4x per round so that a noisy first estimate cannot overshoot far.
+  double want = 1.1 * double(spp) * (error / o.target) * (error / o.target);
+  if (!std::isfinite(want)) want = 4.0 * double(spp);  // an infinite or NaN error: the largest step
+  const double capped = std::clamp(std::ceil(want), double(spp) + 1, 4.0 * double(spp));
+  return int(std::min<double>(capped, o.max_spp));
+}
+
+std::string not_converged_note(const ReferenceFrame& f, const ReferenceOptions& o) {
+  return fmt::format(
+      "reference frame {} did not converge: error {:.3g} at quantile {} after {} spp ({:.1f} s), target {}; "
+      "about {:.0f} spp would reach it: raise max_spp or the target",
+      f.frame, f.error_quantile, o.quantile, f.spp, f.seconds, o.target,
+      std::ceil(double(f.spp) * (f.error_quantile / o.target) * (f.error_quantile / o.target)));
+}
+
+std::string reference_png_path(const std::string& dir, int frame) {
+  return (fs::path(dir) / fmt::format("frame_{:04d}.png", frame)).string();
 }
 
 std::string reference_frame_path(const std::string& dir, int frame) {
@@ -257,11 +299,14 @@ json make_reference(gpu::Context& ctx, const scene::Scene& s_in, int first, int 
       rf.seconds = std::chrono::duration<double>(clock::now() - t0).count();
       if (hooks.on_check) hooks.on_check(rf);
       if (rf.converged || rf.spp >= o.max_spp) break;
-      next = int(std::min<int64_t>(int64_t(rf.spp) * 2, o.max_spp));
+      next = next_check_spp(rf.spp, rf.error_quantile, o);
     }
-    render::write_exr(reference_frame_path(dir, f), img);
+    write_reference_frame(reference_frame_path(dir, f), img);
+    render::write_png(reference_png_path(dir, f), img);
     info["frames"][fkey] = rf.to_json();
     info["frames"][fkey]["inputs"] = inputs;
+    if (!rf.converged) info["frames"][fkey]["note"] = not_converged_note(rf, o);
+    info["frames"][fkey]["features"] = r->stats()["features"];  // "guiding" among them where it applied
     render::write_json(info_path, info);  // after each frame: a killed run keeps the frames it finished
     if (hooks.on_frame) hooks.on_frame(rf, false);
   }

@@ -8,6 +8,8 @@
 #include <nlohmann/json.hpp>
 #include <string>
 #include <string_view>
+#include <utility>
+#include <vector>
 
 #include "gpu/gpu.hpp"
 #include "render/renderer.hpp"
@@ -33,7 +35,8 @@ inline constexpr uint32_t kReferenceSeed = 4000000007u;
 // FNV-1a 64 of `bytes` as 16 hex digits.
 std::string hash_key(std::string_view bytes);
 
-// The scene as the reference renders it: guiding and both denoisers off, EXR only, kReferenceSeed.
+// The scene as the reference renders it: guiding on (its defaults; it applies where the scene has a medium
+// and a light), both denoisers off, kReferenceSeed.
 scene::Scene reference_scene(const scene::Scene& s);
 // What the key covers: the scene without its estimator-only settings (spp, seed, volume samples, majorant
 // resolution, equi-angular share, roulette threshold, outputs, preview, frames, guiding, denoise), the
@@ -45,6 +48,13 @@ std::string reference_key(const scene::Scene& s, const ReferenceOptions& o);
 std::string frame_inputs(const scene::Scene& s, int frame);
 
 std::string reference_frame_path(const std::string& dir, int frame);  // dir/frame_0007.exr
+std::string reference_png_path(const std::string& dir, int frame);    // its preview, dir/frame_0007.png
+
+// A reference renders no denoiser, so its frames hold each denoised layer as the noisy layer it estimates
+// (denoised: R, G, B; surface_denoised: surface; volume_denoised: volume), and a comparison of any of them
+// reads the same layer on both sides.
+inline const std::vector<std::pair<std::string, std::string>> kDenoisedStandIns = {
+    {"denoised", ""}, {"surface_denoised", "surface"}, {"volume_denoised", "volume"}};
 
 struct ReferenceFrame {
   int frame = 0, spp = 0;
@@ -53,6 +63,12 @@ struct ReferenceFrame {
   double seconds = 0;
   nlohmann::json to_json() const;
 };
+
+// The sample count of the next convergence check after `spp` samples reached `error`: where e ~ 1/sqrt(n)
+// meets the target (10% over), more than spp and at most 4 spp, capped at max_spp.
+int next_check_spp(int spp, double error, const ReferenceOptions& o);
+// "reference frame F did not converge: error E at quantile Q after N spp (S s), target T; about M spp ...".
+std::string not_converged_note(const ReferenceFrame& f, const ReferenceOptions& o);
 
 struct ReferenceHooks {
   std::function<void(const ReferenceFrame&)> on_check;  // after each convergence check

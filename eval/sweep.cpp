@@ -298,14 +298,8 @@ void check_runs(const SweepSpec& spec, const std::vector<Run>& runs) {
     }
   for (const Run& r : runs) {
     try {
-      const scene::Scene s = scene::load(spec.scene, r.overrides);
       // The free-form specs that the scene reader leaves to the parts: checked here, before any run.
-      for (size_t i = 0; i < s.media.size(); ++i)
-        if (s.media[i].procedural)
-          vdb::procedural_from_json(*s.media[i].procedural, fmt::format("media[{}].procedural", i));
-      for (size_t i = 0; i < s.surfaces.size(); ++i)
-        if (s.surfaces[i].mesh)
-          surfaces::mesh_from_json(*s.surfaces[i].mesh, fmt::format("surfaces[{}].mesh", i));
+      render::check_part_specs(scene::load(spec.scene, r.overrides));
     } catch (const std::exception& e) {
       throw render::Error(
           fmt::format("{}: run {} {}: {}", spec.file, r.index, r.settings.dump(), from_sweep(e.what())));
@@ -416,6 +410,62 @@ std::string results_csv(const std::vector<json>& rows) {
   return out;
 }
 
+json summary_of_row(const json& row) {
+  const std::string frames = row.value("frames", "0:0");
+  const size_t colon = frames.find(':');
+  int count = 1;
+  if (colon != std::string::npos) count = std::stoi(frames.substr(colon + 1)) - std::stoi(frames) + 1;
+  json passes = json::object();
+  const json all = row.value("passes", json::object());
+  for (const auto& [name, p] : all.items()) passes[name] = p.value("ms_per_frame", 0.0);
+  const json time = row.value("time", json::object());
+  return {{"samples", row.value("samples", 0)},
+          {"frames", count},
+          {"render_s", time.value("render_s", 0.0)},
+          {"gpu_ms_per_frame", time.value("gpu_ms_per_frame", 0.0)},
+          {"passes", passes},
+          {"memory", row.value("memory", json::object())}};
+}
+
+std::string stats_text(const std::string& dir) {
+  const fs::path d(dir);
+  if (fs::is_regular_file(d / "stats.json")) {
+    std::ifstream f(d / "stats.json");
+    json st = json::parse(f, nullptr, false);
+    if (st.is_discarded() || !st.is_object())
+      throw render::Error(fmt::format("{}: not a stats.json (bad JSON); render the folder again",
+                                      (d / "stats.json").string()));
+    return render::format_summary(render::summary_of_stats(st));
+  }
+  // A sweep folder, or one of its runs/<id> folders (the row of that run).
+  std::string only;
+  fs::path sweep = d;
+  if (!fs::exists(d / "results.jsonl") && d.lexically_normal().parent_path().filename() == "runs") {
+    only = d.lexically_normal().filename().string();
+    sweep = d.lexically_normal().parent_path().parent_path();
+  }
+  if (!fs::exists(sweep / "results.jsonl"))
+    throw render::Error(fmt::format(
+        "{}: no stats.json or results.jsonl; pass a `haze render` --out folder, a sweep's --out or one of "
+        "its runs/<id> folders",
+        dir));
+  std::string out;
+  for (const json& row : read_results((sweep / "results.jsonl").string())) {
+    if (!only.empty() && row["run"] != only) continue;
+    out += fmt::format("run {} {}:\n", row.value("index", 0), row.value("settings", json::object()).dump());
+    std::string s = render::format_summary(summary_of_row(row));
+    for (size_t at = 0; at < s.size();) {  // indented under its run
+      const size_t nl = s.find('\n', at);
+      out += "  " + s.substr(at, nl - at + 1);
+      at = nl + 1;
+    }
+  }
+  if (out.empty())
+    throw render::Error(fmt::format("{}: no finished run{} in {}", dir, only.empty() ? "" : " " + only,
+                                    (sweep / "results.jsonl").string()));
+  return out;
+}
+
 size_t count_nonfinite(const render::Image& img) {
   size_t n = 0;
   const size_t pixels = size_t(img.width) * img.height;
@@ -456,6 +506,14 @@ std::vector<float> layer_values(const render::Image& img, const std::string& lay
     return v;
   }
   throw render::Error(fmt::format("no layer \"{}\"", layer));
+}
+
+// Samples per frame: render.spp, or under render.time_budget_s the mean of what each frame reached.
+json mean_samples(const render::RunSummary& rs) {
+  int64_t sum = 0;
+  for (const auto& f : rs.per_frame) sum += f["samples"].get<int64_t>();
+  const int64_t n = int64_t(rs.per_frame.size());
+  return sum % n == 0 ? json(sum / n) : json(double(sum) / double(n));
 }
 
 std::string relative_to(const std::string& path, const std::string& base) {
@@ -502,13 +560,15 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
       "sweep {}: {} runs{}, {} finished before, {} to do", spec.file, runs.size(),
       shard.count > 1 ? fmt::format(" in shard {}/{} of {}", shard.index, shard.count, all.size()) : "",
       runs.size() - todo.size(), todo.size()));
-  if (hooks.progress) hooks.progress(0, todo.size(), nullptr);
+  if (hooks.progress) hooks.progress(0, todo.size(), nullptr, 0.0);
 
   std::unique_ptr<render::Renderer> r;
   int code = 0;
+  double reference_s = 0;  // spent making references, kept out of the runs' ETA
   for (size_t i = 0; i < todo.size(); ++i) {
     const Run& run = todo[i];
     try {
+      json reference_notes = json::array();
       auto t0 = clock::now();
       scene::Scene s = scene::load(spec.scene, run.overrides);
       auto [first, last] = scene::frame_range(s);
@@ -518,12 +578,19 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
             (fs::path(out) / "references" / reference_key(reference_scene(s), *spec.reference)).string();
         ReferenceHooks rh;
         rh.on_frame = [&](const ReferenceFrame& f, bool cached) {
-          if (!cached)
-            log(fmt::format("reference frame {}: {} spp, error {:.3g} at quantile {} ({})", f.frame, f.spp,
-                            f.error_quantile, spec.reference->quantile,
-                            f.converged ? "converged" : "budget spent"));
+          if (cached) return;
+          if (f.converged)
+            log(fmt::format("reference frame {}: {} spp, error {:.3g} at quantile {} ({:.1f} s)", f.frame,
+                            f.spp, f.error_quantile, spec.reference->quantile, f.seconds));
+          else
+            log("note: " + not_converged_note(f, *spec.reference));
         };
-        make_reference(ctx, s, first, last, ref_dir, *spec.reference, rh, r);
+        const auto r0 = clock::now();
+        const json info = make_reference(ctx, s, first, last, ref_dir, *spec.reference, rh, r);
+        reference_s += std::chrono::duration<double>(clock::now() - r0).count();
+        for (int f = first; f <= last; ++f)
+          if (const json& fr = info["frames"][std::to_string(f)]; fr.contains("note"))
+            reference_notes.push_back(fr["note"]);
       }
       const std::string run_dir = (fs::path(dir) / "runs" / run.id).string();
       if (spec.save_images != "none") render::ensure_writable_dir(run_dir);
@@ -537,7 +604,8 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
         json m = {{"frame", f}};
         if (spec.reference) {
           test_frames.push_back(layer_values(img, spec.layer));
-          ref_frames.push_back(read_layer(reference_frame_path(ref_dir, f), ""));
+          // The same layer on both sides (a reference holds every layer a sweep may name).
+          ref_frames.push_back(read_layer(reference_frame_path(ref_dir, f), spec.layer));
           const size_t pixels = size_t(img.width) * img.height;
           Channels x{test_frames.back().data(), pixels, 3, 0, 3};
           m.update(image_metrics(x, ref_frames.back().view(), img.width, img.height));
@@ -550,10 +618,12 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
         }
         if (f == last) memory = ctx.ledger().to_json();
       };
+      const auto t_run = clock::now();  // the reference is made (or found) before this
       // Warm-up: one sample of the first frame, discarded, so that compilation at the first dispatch
       // (lavapipe compiles there) and pipeline creation stay out of the run's timings.
       scene::Scene warm = s;
       warm.render.spp = 1;
+      warm.render.time_budget_s = 0;
       const double pipeline_ms = render::render_frames(ctx, warm, first, first, render::FrameLoop{}, r)
                                      .stats["pipeline_creation_ms"];
       ctx.ledger().reset_peak();
@@ -563,7 +633,7 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
                   {"index", run.index},
                   {"settings", run.settings},
                   {"frames", fmt::format("{}:{}", first, last)},
-                  {"samples", s.render.spp},
+                  {"samples", mean_samples(rs)},
                   {"nonfinite", bad},
                   {"device", ctx.device_name()}};
       row["time"] = {{"gpu_ms_per_frame", rs.gpu_ms / frames},
@@ -576,7 +646,8 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
                      {"pipeline_ms", pipeline_ms},
                      {"setup_s", rs.setup_s},
                      {"render_s", rs.render_s},
-                     {"wall_s", std::chrono::duration<double>(clock::now() - t0).count()}};
+                     {"wall_s", std::chrono::duration<double>(clock::now() - t0).count()},
+                     {"reference_s", std::chrono::duration<double>(t_run - t0).count()}};
       json passes = json::object();
       for (const auto& [name, st] : rs.stats["passes"].items())
         passes[name] = {{"ms_per_frame", st["total_ms"].get<double>() / frames},
@@ -603,9 +674,12 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
           row["temporal"] = temporal(x, y).to_json();
         }
         row["reference"] = relative_to(ref_dir, dir);
+        row["layers"] = compared_layers(spec.layer, spec.layer);
+        row["reference_notes"] = reference_notes;  // frames of the reference that did not converge
         row["per_frame"] = per_frame;
       }
       row["images"] = images;
+      row["preview"] = {{"exposure", s.render.exposure}, {"tonemap", s.render.tonemap}};  // for the report
       row["notes"] = rs.notes;
       append_line(jsonl, row.dump());
       rows.push_back(row);
@@ -622,7 +696,7 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
       throw render::Error(
           fmt::format("{}: run {} {}: {}", spec.file, run.index, run.settings.dump(), e.what()));
     }
-    if (hooks.progress) hooks.progress(i + 1, todo.size(), &rows.back());
+    if (hooks.progress) hooks.progress(i + 1, todo.size(), &rows.back(), reference_s);
   }
   if (todo.empty()) render::write_text(csv, results_csv(rows));
   return code;

@@ -31,7 +31,7 @@ struct SweepSpec {
   std::vector<uint32_t> seeds;        // render.seed of each repetition; empty: the scene's
   std::string frames;                 // "A:B"; "": the scene's render.frames
   std::optional<ReferenceOptions> reference;  // none: no error metrics
-  std::string layer;                 // test layer compared with the reference's R, G, B ("": R, G, B)
+  std::string layer;                 // the layer compared, the same in test and reference ("": R, G, B)
   bool require_finite = true;        // a run with NaN or Inf makes the sweep exit with 4
   std::string save_images = "last";  // last | all | none: EXR frames kept per run (for the report)
   nlohmann::json canonical;          // everything above as JSON: what identifies the sweep
@@ -66,12 +66,20 @@ std::vector<nlohmann::json> read_results(const std::string& path);
 // results.csv of `rows`: one column per setting, time, memory and metric, union over the rows.
 std::string results_csv(const std::vector<nlohmann::json>& rows);
 
+// A result row's figures in render::summary_of_stats's form (for render::format_summary).
+nlohmann::json summary_of_row(const nlohmann::json& row);
+
+// `haze stats DIR`: the summary of a `haze render` folder (its stats.json), of every run of a sweep folder
+// (its results.jsonl), or of one run (DIR/runs/<id>). Throws Error naming DIR and what it expected.
+std::string stats_text(const std::string& dir);
+
 // NaN and Inf among every layer haze writes for `img` (what require_finite checks).
 size_t count_nonfinite(const render::Image& img);
 
 struct SweepHooks {
   std::function<void(const std::string&)> log;  // one line
-  std::function<void(size_t done, size_t total, const nlohmann::json* row)> progress;
+  // After each run; reference_s: seconds this call spent making references so far (not part of any run).
+  std::function<void(size_t done, size_t total, const nlohmann::json* row, double reference_s)> progress;
 };
 
 // Runs the shard's unfinished runs. Returns the exit code: 0, or 4 when require_finite and a run had NaN

@@ -211,7 +211,7 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
                         {"surface_denoised.B", &planes[5]},
                         {"surface_history.Y", &planes[6]},
                         {"surface_denoised_variance.Y", &planes[7]}});
-    write_png_rgba8(outs.stage(stem + ".png"), W, H, ldr.download_vector<uint32_t>());
+    write_png_rgb8(outs.stage(stem + ".png"), W, H, ldr.download_vector<uint32_t>());
     frames.push_back({{"input", file}, {"gpu_ms", total}});
   }
   nlohmann::json passes = nlohmann::json::object();

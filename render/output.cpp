@@ -10,6 +10,7 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <cmath>
 #include <csignal>
 #include <cstring>
 #include <filesystem>
@@ -143,20 +144,24 @@ void write_exr_channels(const std::string& path, int width, int height,
   });
 }
 
-void write_exr(const std::string& path, const Image& img) {
-  size_t pixels = size_t(img.width) * img.height;
-  std::vector<std::vector<float>> planes;
-  std::vector<std::string> names;
+std::vector<std::pair<std::string, std::vector<float>>> exr_planes(const Image& img) {
+  const size_t pixels = size_t(img.width) * img.height;
+  std::vector<std::pair<std::string, std::vector<float>>> planes;
   for (const Layer& l : exr_layers()) {
     if (!l.present(img)) continue;
     for (size_t c = 0; c < l.channels.size(); ++c) {
-      names.push_back(l.name.empty() ? l.channels[c] : l.name + "." + l.channels[c]);
-      planes.emplace_back(pixels);
-      for (size_t p = 0; p < pixels; ++p) planes.back()[p] = l.value(img, p, int(c));
+      planes.emplace_back(l.name.empty() ? l.channels[c] : l.name + "." + l.channels[c],
+                          std::vector<float>(pixels));
+      for (size_t p = 0; p < pixels; ++p) planes.back().second[p] = l.value(img, p, int(c));
     }
   }
+  return planes;
+}
+
+void write_exr(const std::string& path, const Image& img) {
+  const auto planes = exr_planes(img);
   std::vector<std::pair<std::string, const std::vector<float>*>> channels;
-  for (size_t i = 0; i < names.size(); ++i) channels.emplace_back(names[i], &planes[i]);
+  for (const auto& [name, plane] : planes) channels.emplace_back(name, &plane);
   write_exr_channels(path, img.width, img.height, channels);
 }
 
@@ -175,19 +180,33 @@ void write_bytes(const std::string& path, std::string_view bytes) {
 
 }  // namespace
 
-void write_png_rgba8(const std::string& path, int width, int height, const std::vector<uint32_t>& rgba) {
+void write_png_rgb8(const std::string& path, int width, int height, const std::vector<uint32_t>& rgba) {
+  std::vector<uint8_t> rgb(rgba.size() * 3);
+  for (size_t p = 0; p < rgba.size(); ++p)
+    for (int c = 0; c < 3; ++c) rgb[p * 3 + size_t(c)] = uint8_t(rgba[p] >> (8 * c));
   // Encoded in memory: stb's own file writer does not check its writes.
   std::string png;
   auto append = [](void* ctx, void* data, int size) {
     static_cast<std::string*>(ctx)->append(static_cast<char*>(data), size_t(size));
   };
-  if (!stbi_write_png_to_func(append, &png, width, height, 4, rgba.data(), width * 4))
+  if (!stbi_write_png_to_func(append, &png, width, height, 3, rgb.data(), width * 3))
     throw Error(fmt::format("cannot write {}: the PNG encoder failed", path));
   atomic_write(path, [&](const std::string& tmp) { write_bytes(tmp, png); });
 }
 
 void write_png(const std::string& path, const Image& img) {
-  write_png_rgba8(path, img.width, img.height, img.ldr);
+  write_png_rgb8(path, img.width, img.height, img.ldr);
+}
+
+std::vector<uint32_t> preview_srgb8(const std::vector<float>& rgb, float exposure,
+                                    const std::string& tonemap) {
+  const uint32_t op = tonemap_op(tonemap);
+  const float scale = std::exp2(exposure);
+  std::vector<uint32_t> px(rgb.size() / 3);
+  for (size_t p = 0; p < px.size(); ++p)
+    px[p] =
+        glsl::pack_srgb8(glsl::tonemap(glm::vec3(rgb[p * 3], rgb[p * 3 + 1], rgb[p * 3 + 2]) * scale, op));
+  return px;
 }
 
 void write_text(const std::string& path, const std::string& text) {

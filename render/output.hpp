@@ -24,12 +24,20 @@ struct Layer {
 };
 const std::vector<Layer>& exr_layers();
 
+// Every present layer's channels by name ("R", "volume.R", ...) with their planes, in exr_layers() order.
+std::vector<std::pair<std::string, std::vector<float>>> exr_planes(const Image& img);
 void write_exr(const std::string& path, const Image& img);
 void write_png(const std::string& path, const Image& img);
 // Float channels by name ("denoised.R", ...), each width * height values; written atomically.
 void write_exr_channels(const std::string& path, int width, int height,
                         const std::vector<std::pair<std::string, const std::vector<float>*>>& channels);
-void write_png_rgba8(const std::string& path, int width, int height, const std::vector<uint32_t>& rgba);
+// Packed RGBA8 pixels (red in the low byte, as the preview buffer holds them) written as an 8-bit RGB PNG:
+// the alpha is always 255, and tools that montage previews (oiiotool) expect three channels.
+void write_png_rgb8(const std::string& path, int width, int height, const std::vector<uint32_t>& rgba);
+// The preview of linear RGB values (3 floats per pixel) as haze's PNGs make it: exposure in EV, then the
+// tone curve `tonemap` (aces, reinhard, clamp; render.tonemap), then sRGB. Packed as write_png_rgb8 takes.
+std::vector<uint32_t> preview_srgb8(const std::vector<float>& rgb, float exposure,
+                                    const std::string& tonemap);
 void write_json(const std::string& path, const nlohmann::json& j);
 void write_text(const std::string& path, const std::string& text);
 

@@ -61,11 +61,14 @@ CameraBasis camera_basis(const scene::Camera& c, const scene::RenderSettings& r)
           glm::vec4(fwd, 0)};
 }
 
+uint32_t tonemap_op(const std::string& name) {
+  return name == "aces" ? 0u : (name == "reinhard" ? 1u : 2u);
+}
+
 TonemapPush tonemap_push(const scene::RenderSettings& r, uint32_t pixels, glm::uvec2 surface_layout,
                          glm::uvec2 volume_layout) {
-  const uint32_t op = r.tonemap == "aces" ? 0u : (r.tonemap == "reinhard" ? 1u : 2u);
-  return {pixels, surface_layout.x, surface_layout.y, volume_layout.x, volume_layout.y, std::exp2(r.exposure),
-          op};
+  return {pixels,          surface_layout.x,      surface_layout.y,     volume_layout.x,
+          volume_layout.y, std::exp2(r.exposure), tonemap_op(r.tonemap)};
 }
 
 gpu::KernelDecl tonemap_decl(uint64_t pixels, bool surface_half, bool volume_half) {

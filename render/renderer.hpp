@@ -68,6 +68,8 @@ struct TonemapPush {
   float exposure_scale;
   uint32_t tonemap;
 };
+// render.tonemap's name as the shaders' tone-curve number (0 aces, 1 reinhard, 2 clamp).
+uint32_t tonemap_op(const std::string& name);
 TonemapPush tonemap_push(const scene::RenderSettings& r, uint32_t pixels, glm::uvec2 surface_layout = {0, 0},
                          glm::uvec2 volume_layout = {0, 0});
 // The tonemap kernel: the surface and the volume signal as SVGF outputs (half) or floats.

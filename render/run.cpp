@@ -5,9 +5,34 @@
 #include <algorithm>
 #include <chrono>
 
+#include "render/output.hpp"
 #include "scene/animation.hpp"
+#include "surfaces/scene_geometry.hpp"
+#include "vdb/vdb.h"
 
 namespace haze::render {
+
+void check_part_specs(const scene::Scene& s) {
+  const std::string file = s.path.empty() ? "" : s.path + ": ";
+  try {
+    for (size_t i = 0; i < s.media.size(); ++i) {
+      const scene::Medium& m = s.media[i];
+      const std::string where = fmt::format("media[{}]", i);
+      if (m.procedural) {
+        vdb::procedural_from_json(*m.procedural, where + ".procedural");
+      } else if (!m.file.empty() && !scene::is_sequence(m.file)) {
+        vdb::check_grid_name(m.file, m.grid, where + ".grid");
+        if (m.emission.mode != "none" && m.emission.grid != m.grid)
+          vdb::check_grid_name(m.file, m.emission.grid, where + ".emission.grid");
+      }
+    }
+    for (size_t i = 0; i < s.surfaces.size(); ++i)
+      if (s.surfaces[i].mesh)
+        surfaces::mesh_from_json(*s.surfaces[i].mesh, fmt::format("surfaces[{}].mesh", i));
+  } catch (const std::exception& e) {
+    throw Error(file + e.what());
+  }
+}
 
 double total_gpu_ms(const Renderer& r) {
   double ms = 0;
@@ -46,7 +71,15 @@ RunSummary render_frames(gpu::Context& ctx, const scene::Scene& s, int first, in
     const double gpu_before = total_gpu_ms(*r);
     const auto& passes = r->pass_stats();
     size_t trace_before = passes.count("trace") ? passes.at("trace").ms.size() : 0;
-    r->add_samples(fs.render.spp, loop.progress);
+    if (fs.render.time_budget_s > 0) {
+      // One sample at a time until the budget is spent: each add_samples waits for its sample.
+      const auto until = t1 + std::chrono::duration_cast<clock::duration>(
+                                  std::chrono::duration<double>(fs.render.time_budget_s));
+      do r->add_samples(1);
+      while (clock::now() < until);
+    } else {
+      r->add_samples(fs.render.spp, loop.progress);
+    }
     Image img = r->resolve();
     auto t2 = clock::now();
     if (loop.on_frame) loop.on_frame(f, img);
@@ -64,6 +97,7 @@ RunSummary render_frames(gpu::Context& ctx, const scene::Scene& s, int first, in
                              {"render_s", frender},
                              {"gpu_ms", gpu_ms},
                              {"trace_gpu_ms", trace_ms},
+                             {"samples", r->samples()},
                              {"non_finite", img.non_finite},
                              {"clamped_squares", img.clamped_squares}});
     out.non_finite += img.non_finite;
@@ -83,6 +117,62 @@ RunSummary render_frames(gpu::Context& ctx, const scene::Scene& s, int first, in
         "finite; variance and surface_demod_m2 are lower bounds in those pixels",
         out.clamped_squares, double(glsl::SQUARE_MAX)));
   out.stats = r->stats();
+  return out;
+}
+
+nlohmann::json summary_of_stats(const nlohmann::json& st) {
+  const double frames = st.contains("frames") && st["frames"].is_array() && !st["frames"].empty()
+                            ? double(st["frames"].size())
+                            : 1.0;
+  nlohmann::json passes = nlohmann::json::object();
+  double gpu = 0;
+  const nlohmann::json all = st.value("passes", nlohmann::json::object());
+  for (const auto& [name, p] : all.items()) {
+    passes[name] = p.value("total_ms", 0.0) / frames;
+    gpu += p.value("total_ms", 0.0) / frames;
+  }
+  nlohmann::json memory = st.value("memory", nlohmann::json::object());
+  memory.erase("entries");
+  // A `haze denoise` folder's stats.json has no samples and no render time: left out, not shown as 0.
+  return {{"samples", st.value("samples", nlohmann::json())},
+          {"frames", int(frames)},
+          {"render_s", st.value("render_s", nlohmann::json())},
+          {"gpu_ms_per_frame", gpu},
+          {"passes", passes},
+          {"memory", memory}};
+}
+
+std::string format_summary(const nlohmann::json& s) {
+  const int frames = s.value("frames", 1);
+  const nlohmann::json spp = s.value("samples", nlohmann::json()),
+                       render = s.value("render_s", nlohmann::json());
+  std::string out =
+      fmt::format("{}{} frame{}{}, GPU {:.1f} ms per frame\n",
+                  spp.is_number() ? fmt::format("{} spp, ", spp.dump()) : "", frames, frames == 1 ? "" : "s",
+                  render.is_number() ? fmt::format(", {:.2f} s render", render.get<double>()) : "",
+                  s.value("gpu_ms_per_frame", 0.0));
+  auto largest = [](const nlohmann::json& obj) {
+    std::vector<std::pair<std::string, double>> v;
+    for (const auto& [k, x] : obj.items())
+      if (x.is_number()) v.emplace_back(k, x.get<double>());
+    std::stable_sort(v.begin(), v.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
+    return v;
+  };
+  const auto passes = largest(s.value("passes", nlohmann::json::object()));
+  double total = 0;
+  for (const auto& [k, ms] : passes) total += ms;
+  std::string top;
+  for (size_t i = 0; i < std::min<size_t>(3, passes.size()); ++i)
+    top += fmt::format("{}{} {:.2f} ms ({:.0f}%)", i ? ", " : "", passes[i].first, passes[i].second,
+                       total > 0 ? 100 * passes[i].second / total : 0.0);
+  out += fmt::format("most expensive passes (GPU ms per frame): {}\n", top.empty() ? "none timed" : top);
+  const nlohmann::json memory = s.value("memory", nlohmann::json::object());
+  std::string cats;
+  for (const auto& [k, bytes] : largest(memory.value("per_category", nlohmann::json::object())))
+    cats += fmt::format("{}{} {:.3g}", cats.empty() ? "" : ", ", k, bytes / 1e6);
+  out += fmt::format("memory {:.3g} MB (peak {:.3g} MB), per category in MB: {}\n",
+                     memory.value("total", 0.0) / 1e6, memory.value("peak", 0.0) / 1e6,
+                     cats.empty() ? "none" : cats);
   return out;
 }
 

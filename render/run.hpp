@@ -37,6 +37,17 @@ RunSummary render_frames(gpu::Context& ctx, const scene::Scene& s, int first, in
 scene::Scene use_frame(gpu::Context& ctx, std::unique_ptr<Renderer>& r, const scene::Scene& s, int f,
                        bool fresh);
 
+// Checks what the scene reader leaves to the parts, before a device starts: procedural volume and mesh
+// specs, and that each .vdb has the grids the scene names. Throws Error "<scene file>: <key>: ...".
+void check_part_specs(const scene::Scene& s);
+
+// The figures a run ends with (`haze render`, `haze stats`): {samples, frames, render_s, gpu_ms_per_frame,
+// passes: {name: GPU ms per frame}, memory: the ledger's {total, peak, per_category}}.
+nlohmann::json summary_of_stats(const nlohmann::json& stats);  // of a stats.json of `haze render`
+// Three lines: samples and time; the three most expensive passes with their share; memory per category
+// (largest first) with the total and peak.
+std::string format_summary(const nlohmann::json& summary);
+
 // Sum of every pass's recorded GPU times.
 double total_gpu_ms(const Renderer& r);
 

@@ -264,19 +264,30 @@ Scene load(const std::string& path, const std::vector<std::string>& overrides) {
   Scene s = read_scene(j, ctx, base_dir);
   s.path = path;
   // Files named by the scene must exist (a sequence's frames are checked below, per frame).
-  auto require_file = [&](const std::string& key, const std::string& f) {
+  // `list`[i].`field` as the file (or an override) wrote it: the hint about relative paths is for those only.
+  auto written = [&](const char* list, size_t i, const char* field) {
+    const nlohmann::json* v = j.contains(list) && j[list].is_array() && i < j[list].size() &&
+                                      j[list][i].is_object() && j[list][i].contains(field)
+                                  ? &j[list][i][field]
+                                  : nullptr;
+    return v && v->is_string() ? v->get<std::string>() : std::string();
+  };
+  auto require_file = [&](const std::string& key, const std::string& f, const std::string& as_written) {
     if (f.empty() || fs::is_regular_file(f, ec)) return;
     if (fs::exists(f, ec))
       ctx.fail(key, fmt::format("{} is {}, not a regular file; name a file", f,
                                 fs::is_directory(f, ec) ? "a directory" : "a device, pipe or socket"));
+    if (fs::path(as_written).is_absolute()) ctx.fail(key, fmt::format("no such file: {}; check the path", f));
     ctx.fail(key, fmt::format("no such file: {} (relative paths start at the scene file's folder {})", f,
                               base_dir));
   };
   for (size_t i = 0; i < s.media.size(); ++i)
-    if (!is_sequence(s.media[i].file)) require_file(fmt::format("media[{}].file", i), s.media[i].file);
+    if (!is_sequence(s.media[i].file))
+      require_file(fmt::format("media[{}].file", i), s.media[i].file, written("media", i, "file"));
   for (size_t i = 0; i < s.surfaces.size(); ++i) {
-    require_file(fmt::format("surfaces[{}].file", i), s.surfaces[i].file);
-    require_file(fmt::format("surfaces[{}].albedo_texture", i), s.surfaces[i].albedo_texture);
+    require_file(fmt::format("surfaces[{}].file", i), s.surfaces[i].file, written("surfaces", i, "file"));
+    require_file(fmt::format("surfaces[{}].albedo_texture", i), s.surfaces[i].albedo_texture,
+                 written("surfaces", i, "albedo_texture"));
   }
   auto [first, last] = frame_range(s);
   detail::check_frame_files(s, first, last, ctx);

@@ -124,8 +124,9 @@ struct RenderSettings {
   int width = 320;
   int height = 180;
   int spp = 16;
-  int volume_samples = 1;  // distance samples per camera sample
-  int max_depth = 1;       // scattering events per path: 1 = single scattering
+  float time_budget_s = 0.f;  // > 0: samples until this much sampling time per frame is spent (spp unused)
+  int volume_samples = 1;     // distance samples per camera sample
+  int max_depth = 1;          // scattering events per path: 1 = single scattering
   uint32_t seed = 1;
   int majorant_resolution = 32;  // majorant cells along the longest axis of the media bounds
   float exposure = 0.f;          // EV applied to the PNG preview
@@ -314,6 +315,9 @@ void reflect(V& v, RenderSettings& r) {
   v.field("width", r.width, Range{1, 16384}, "image width, pixels");
   v.field("height", r.height, Range{1, 16384}, "image height, pixels");
   v.field("spp", r.spp, Range{1, 1 << 20}, "camera samples per pixel");
+  v.field("time_budget_s", r.time_budget_s, Range{0, 86400},
+          "seconds of sampling per frame: above 0, samples are added until it is spent (at least one) and "
+          "spp is unused");
   v.field("volume_samples", r.volume_samples, Range{1, 64}, "distance samples per camera sample");
   v.field("max_depth", r.max_depth, Range{0, 256},
           "scattering events per path: 0 = emission and attenuation only, 1 = single scattering");

@@ -1,6 +1,7 @@
 #include "surfaces/scene_geometry.hpp"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include <algorithm>
 #include <set>
@@ -42,7 +43,10 @@ class SpecReader {
   }
   void finish() {
     for (auto it = j_.begin(); it != j_.end(); ++it)
-      if (it.key() != "kind" && !used_.count(it.key())) fail(it.key(), "unknown key for this kind of mesh");
+      if (it.key() != "kind" && !used_.count(it.key()))
+        fail(it.key(),
+             fmt::format("unknown key for a {} mesh; its keys are kind{}{}", j_["kind"].get<std::string>(),
+                         used_.empty() ? "" : ", ", fmt::format("{}", fmt::join(used_, ", "))));
   }
   [[noreturn]] void fail(const std::string& key, const std::string& what) const {
     throw Error(fmt::format("{}.{}: {}", where_, key, what));

@@ -41,10 +41,7 @@ Texture load_texture(const std::string& path) {
                     "file",
                     path));
   if (!std::filesystem::is_regular_file(path, ec))
-    throw Error(
-        fmt::format("texture {}: no such file; check the path (relative paths start at the scene "
-                    "file's folder)",
-                    path));
+    throw Error(fmt::format("texture {}: no such file; check the path", path));  // the scene resolved it
   FILE* f = std::fopen(path.c_str(), "rb");
   if (!f) throw Error(fmt::format("texture {}: cannot open: {}", path, std::strerror(errno)));
   std::unique_ptr<FILE, decltype(&std::fclose)> file(f, &std::fclose);

@@ -2,6 +2,7 @@
 // or key, non-zero exit, nothing already written lost).
 #include <fmt/format.h>
 #include <gtest/gtest.h>
+#include <stb/stb_image.h>
 #include <sys/wait.h>
 
 #include <array>
@@ -254,6 +255,111 @@ TEST_F(Cli, DeviceFilesAreRefusedByType) {
 
 // A procedural medium beyond OpenVDB's 32-bit index range: one line naming the scene file and the key
 // (OpenVDB's own "can't construct a dense grid with an empty bounding box" named neither).
+// `haze render` ends with its figures (samples, time, the three most expensive passes, memory per category),
+// `haze stats` prints the same for the folder, previews are RGB, and `haze tonemap` writes any layer as one.
+TEST_F(Cli, RenderSummaryStatsAndTonemap) {
+  const std::string out = (dir / "out").string();
+  auto r = run(fmt::format("render {} --out {}", small_scene(", \"exposure\": 1.5"), out));
+  ASSERT_EQ(r.code, 0) << r.out;
+  const size_t at = r.out.find("4 spp, 1 frame, ");
+  ASSERT_NE(at, std::string::npos) << r.out;
+  const std::string summary = r.out.substr(at);
+  const std::string passes = summary.substr(summary.find("most expensive passes (GPU ms per frame): "));
+  EXPECT_NE(passes.substr(0, passes.find('\n')).find("trace "), std::string::npos) << summary;
+  EXPECT_NE(summary.find("per category in MB: "), std::string::npos) << summary;
+  EXPECT_NE(summary.find("per-frame temporaries"), std::string::npos) << summary;
+  auto st = run("stats " + out);
+  ASSERT_EQ(st.code, 0) << st.out;
+  EXPECT_EQ(st.out, summary);
+  expect_one_line_error(run("stats " + dir.string()), "no stats.json or results.jsonl");
+  // A `haze denoise` folder: its passes and memory, and no sample count or render time it does not have.
+  ASSERT_EQ(run(fmt::format("denoise {} --out {}/dn", out, dir.string())).code, 0);
+  st = run(fmt::format("stats {}/dn", dir.string()));
+  ASSERT_EQ(st.code, 0) << st.out;
+  EXPECT_EQ(st.out.rfind("1 frame, GPU ", 0), 0u) << st.out;
+  EXPECT_NE(st.out.find("svgf.surface."), std::string::npos) << st.out;
+
+  auto png_info = [](const std::string& path) {
+    int w = 0, h = 0, n = 0;
+    EXPECT_TRUE(stbi_info(path.c_str(), &w, &h, &n)) << path;
+    return std::array<int, 3>{w, h, n};
+  };
+  EXPECT_EQ(png_info(out + "/frame_0000.png"), (std::array<int, 3>{24, 16, 3}));
+  // The denoised layer at the scene's exposure (from stats.json) is the preview the renderer wrote.
+  const std::string base = (dir / "base.png").string();
+  r = run(fmt::format("tonemap {}/frame_0000.exr --layer denoised --out {}", out, base));
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_NE(r.out.find("+1.5 EV, aces, the scene's from"), std::string::npos) << r.out;
+  int w = 0, h = 0, n = 0;
+  unsigned char* a = stbi_load(base.c_str(), &w, &h, &n, 3);
+  unsigned char* b = stbi_load((out + "/frame_0000.png").c_str(), &w, &h, &n, 3);
+  ASSERT_TRUE(a && b);
+  int worst = 0;
+  for (int i = 0; i < w * h * 3; ++i) worst = std::max(worst, std::abs(int(a[i]) - int(b[i])));
+  stbi_image_free(a);
+  stbi_image_free(b);
+  EXPECT_LE(worst, 1);  // CPU and GPU round alike but for the last bit
+  for (const char* layer : {"volume", "depth", "motion", "transmittance"}) {
+    const std::string p = (dir / fmt::format("{}.png", layer)).string();
+    r = run(fmt::format("tonemap {}/frame_0000.exr --layer {} --exposure -2 --out {}", out, layer, p));
+    ASSERT_EQ(r.code, 0) << r.out;
+    EXPECT_EQ(png_info(p), (std::array<int, 3>{24, 16, 3})) << layer;
+  }
+  expect_one_line_error(run(fmt::format("tonemap {}/frame_0000.exr --layer nope --out {}/x.png", out, out)),
+                        "pass --layer with one of: ");
+  expect_one_line_error(
+      run(fmt::format("tonemap {}/frame_0000.exr --tonemap filmic --out {}/x.png", out, out)),
+      "not one of aces, reinhard, clamp");
+}
+
+// render.time_budget_s: samples until the budget is spent, counted in stats.json and the summary.
+TEST_F(Cli, TimeBudgetSamplesUntilSpent) {
+  const std::string scene = small_scene();
+  auto samples_with = [&](double budget) {
+    const std::string out = (dir / fmt::format("b{}", budget)).string();
+    auto r = run(fmt::format("render {} --out {} --set render.time_budget_s={}", scene, out, budget));
+    EXPECT_EQ(r.code, 0) << r.out;
+    const auto st = nlohmann::json::parse(std::ifstream(out + "/stats.json"));
+    const int n = st["frames"][0]["samples"].get<int>();
+    EXPECT_NE(r.out.find(fmt::format("{} spp, 1 frame, ", n)), std::string::npos) << r.out;
+    EXPECT_GE(st["frames"][0]["render_s"].get<double>(), budget);
+    return n;
+  };
+  const int small = samples_with(0.05), large = samples_with(0.5);
+  EXPECT_GE(small, 1);
+  EXPECT_GT(large, 2 * small);  // 10x the budget: samples cost about the same each
+}
+
+// Mesh, procedural and grid errors name the scene file and the key, list what is valid, and come before the
+// device starts; the hint about relative paths is given for relative paths only.
+TEST_F(Cli, PartSpecErrorsNameFileAndKeyBeforeTheDevice) {
+  auto scene = [&](const std::string& body) { return write("p.json", body); };
+  auto render = [&](const std::string& s) {
+    return run(fmt::format("render {} --out {}/o", s, dir.string()));
+  };
+  std::string s = scene(R"({"surfaces": [{"mesh": {"kind": "plane", "sise": [2, 2]}}]})");
+  auto r = render(s);
+  expect_one_line_error(r,
+                        s + ": surfaces[0].mesh.sise: unknown key for a plane mesh; its keys are kind, size");
+  EXPECT_EQ(r.out.find("device:"), std::string::npos) << r.out;
+  s = scene(R"({"media": [{"procedural": {"kind": "box", "densty": 2}}]})");
+  r = render(s);
+  expect_one_line_error(r, s + ": media[0].procedural: unknown key 'densty' (known: kind,");
+  EXPECT_EQ(r.out.find("device:"), std::string::npos) << r.out;
+  ASSERT_EQ(run(fmt::format("vdb make box --out {}/box.vdb", dir.string())).code, 0);
+  s = scene(R"({"media": [{"file": "box.vdb", "grid": "dens"}]})");
+  r = render(s);
+  expect_one_line_error(r, s + ": media[0].grid:");
+  EXPECT_NE(r.out.find("set media[0].grid to one of these"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("device:"), std::string::npos) << r.out;
+  s = scene(R"({"media": [{"file": "nothere.vdb"}]})");
+  expect_one_line_error(render(s), "relative paths start at the scene file's folder");
+  s = scene(R"({"media": [{"file": "/nonexistent/nothere.vdb"}]})");
+  r = render(s);
+  expect_one_line_error(r, "no such file: /nonexistent/nothere.vdb; check the path");
+  EXPECT_EQ(r.out.find("relative paths"), std::string::npos) << r.out;
+}
+
 TEST_F(Cli, ProceduralMediumOutOfIndexRange) {
   const std::string scene =
       write("far.json", R"({"media": [{"procedural": {"kind": "cloud", "voxel_size": 0.1,

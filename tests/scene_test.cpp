@@ -8,6 +8,7 @@
 #include <functional>
 #include <glm/vec4.hpp>
 #include <initializer_list>
+#include <set>
 #include <sstream>
 #include <string>
 
@@ -395,6 +396,26 @@ TEST(SceneDescribe, DocsMentionEveryParameter) {
   for (const auto& p : hs::describe()) {
     EXPECT_NE(doc.find("`" + p.path + "`"), std::string::npos) << p.path << " is not documented";
   }
+}
+
+// The rule that lists the file's sections names every top-level key the scene has, and says how many.
+TEST(SceneDocs, SectionListIsComplete) {
+  std::ifstream in(HAZE_SCENE_FORMAT_MD);
+  ASSERT_TRUE(in);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  const std::string doc = ss.str();
+  const size_t at = doc.find("The file holds one object with up to ");
+  ASSERT_NE(at, std::string::npos);
+  const std::string rule = doc.substr(at, doc.find('.', at) - at);
+  std::set<std::string> sections;
+  for (const auto& p : hs::describe()) sections.insert(p.path.substr(0, p.path.find_first_of(".[")));
+  for (const auto& s : sections) EXPECT_NE(rule.find("`" + s + "`"), std::string::npos) << s << ": " << rule;
+  const char* words[] = {"zero",  "one",   "two",  "three", "four",   "five",  "six",
+                         "seven", "eight", "nine", "ten",   "eleven", "twelve"};
+  ASSERT_LT(sections.size(), std::size(words));
+  EXPECT_NE(rule.find(std::string("up to ") + words[sections.size()] + " sections"), std::string::npos)
+      << rule;
 }
 
 TEST(SceneDocs, ExamplesLoad) {

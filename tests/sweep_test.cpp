@@ -6,6 +6,7 @@
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 #include <signal.h>
+#include <stb/stb_image.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -20,6 +21,7 @@
 #include <thread>
 
 #include "eval/reference.hpp"
+#include "eval/report.hpp"
 #include "haze_cli.hpp"
 #include "render/output.hpp"
 #include "temp_dir.hpp"
@@ -111,6 +113,20 @@ TEST(SweepFile, ExpandsCartesianZipAndEachWithSeeds) {
   ASSERT_EQ(m.size(), 4u);
   EXPECT_EQ(m[2].settings["render.width"], 16);
   EXPECT_EQ(m[2].settings["render.height"], 12);
+}
+
+// docs/workflow.md walks through scenes/guiding.sweep.json: its copy of the file is the shipped one.
+TEST(SweepFile, WorkflowDocShowsTheShippedSweep) {
+  std::ifstream doc_file(std::string(HAZE_SOURCE_DIR) + "/docs/workflow.md");
+  const std::string doc((std::istreambuf_iterator<char>(doc_file)), std::istreambuf_iterator<char>());
+  const size_t at = doc.find("```json\n", doc.find("## A complete example"));
+  ASSERT_NE(at, std::string::npos);
+  const size_t end = doc.find("```", at + 8);
+  const json shown = json::parse(doc.substr(at + 8, end - at - 8));
+  const json shipped =
+      json::parse(std::ifstream(std::string(HAZE_SOURCE_DIR) + "/scenes/guiding.sweep.json"));
+  EXPECT_EQ(shown, shipped);
+  EXPECT_NO_THROW(haze::eval::load_sweep(std::string(HAZE_SOURCE_DIR) + "/scenes/guiding.sweep.json"));
 }
 
 TEST(SweepFile, ShardsCoverEveryRunExactlyOnce) {
@@ -276,6 +292,95 @@ TEST(SweepFile, CountsNonFiniteValuesInEveryLayer) {
   EXPECT_GE(haze::eval::count_nonfinite(bad), 1u);
 }
 
+// The equal-time table on constructed results: two settings whose error falls as 1/time (B twice A's error
+// at equal time for seed 1, 2.2 times for seed 2) over a spp axis, and a third whose times overlap neither.
+TEST(Report, EqualTimeTableOnConstructedResults) {
+  auto row = [](bool guided, int spp, int seed, double ms, double relmse) {
+    json settings = {{"guiding.enabled", guided},
+                     {"guiding.probability", 0.5},
+                     {"render.spp", spp},
+                     {"render.seed", seed}};
+    return json{{"run", fmt::format("{}-{}-{}", guided, spp, seed)},
+                {"index", 0},
+                {"settings", settings},
+                {"frames", "0:0"},
+                {"samples", spp},
+                {"time", {{"gpu_ms_per_frame", ms}}},
+                {"passes", {{"trace", {{"ms_per_frame", ms}}}}},
+                {"memory", {{"total", 1e6}, {"peak", 1e6}, {"per_category", {{"outputs", 1e6}}}}},
+                {"metrics", {{"relmse", relmse}}},
+                {"nonfinite", 0},
+                {"images", json::array()},
+                {"device", "constructed"}};
+  };
+  std::vector<json> rows;
+  for (int seed : {1, 2})
+    for (int spp : {1, 4, 16}) {
+      const double ta = 10.0 * spp, tb = 12.0 * spp;
+      rows.push_back(row(true, spp, seed, ta, 1.0 / ta));                       // A: guided
+      rows.push_back(row(false, spp, seed, tb, (seed == 1 ? 2.0 : 2.2) / tb));  // B: unguided
+    }
+  const json et = haze::eval::equal_time_table(rows, "relmse");
+  ASSERT_TRUE(et.is_object()) << et.dump();
+  EXPECT_EQ(et["cost_axis"], "render.spp");
+  EXPECT_EQ(et["curves"], json({"guiding.enabled=true, guiding.probability=0.5", "guiding.enabled=false"}));
+  ASSERT_EQ(et["budgets"].size(), 3u);
+  const double budgets[] = {12, std::sqrt(12.0 * 160), 160};  // inside both curves' ranges
+  for (size_t i = 0; i < 3; ++i) {
+    const json& b = et["budgets"][i];
+    EXPECT_NEAR(b["ms"].get<double>(), budgets[i], 1e-9);
+    EXPECT_EQ(b["winner"], "guiding.enabled=true, guiding.probability=0.5");
+    const json& a = b["rows"][0];
+    const json& u = b["rows"][1];
+    EXPECT_NEAR(a["error"].get<double>(), 1.0 / budgets[i], 1e-9);  // a power law interpolates exactly
+    EXPECT_DOUBLE_EQ(a["ratio"].get<double>(), 1.0);
+    EXPECT_NEAR(u["ratio"].get<double>(), 2.1, 1e-9);  // of the seed-mean curves
+    EXPECT_NEAR(u["ratio_mean"].get<double>(), 2.1, 1e-9);
+    EXPECT_NEAR(u["ratio_sd"].get<double>(), 0.2 / std::sqrt(2.0), 1e-9);
+    EXPECT_EQ(u["seeds"], 2);
+    EXPECT_EQ(u["short"], "enabled=false");  // guiding off has no probability
+  }
+  // Settings whose times do not overlap get no budget, and a note that says why.
+  std::vector<json> apart = {row(true, 1, 1, 1, 1), row(true, 4, 1, 2, 0.5), row(false, 1, 1, 10, 1),
+                             row(false, 4, 1, 20, 0.5)};
+  const json none = haze::eval::equal_time_table(apart, "relmse");
+  EXPECT_TRUE(none["budgets"].empty());
+  EXPECT_NE(none["note"].get<std::string>().find("do not overlap"), std::string::npos);
+  EXPECT_TRUE(haze::eval::equal_time_table({rows[0], rows[2]}, "relmse").is_null());  // one curve
+
+  // Through `haze report`: the summary opens the page with the answer, and the table is there.
+  TempDir t("haze-report");
+  rows[0]["reference_notes"] = {"reference frame 0 did not converge: error 0.103 at quantile 0.99"};
+  std::string text;
+  for (const auto& r : rows) text += r.dump() + "\n";
+  t.write("out/results.jsonl", text);
+  t.write("out/sweep.json", R"({"scene": "demo.json", "reference": {"target": 0.05, "quantile": 0.95,
+    "min_spp": 64, "max_spp": 2048}, "layer": ""})");
+  Result r = run(fmt::format("report {}", (t.path() / "out").string()));
+  ASSERT_EQ(r.code, 0) << r.out;
+  std::ifstream f(t.path() / "out/report.html");
+  const std::string html((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  const size_t summary = html.find("<h2>Summary</h2>");
+  ASSERT_NE(summary, std::string::npos);
+  EXPECT_LT(summary, html.find("<img"));
+  EXPECT_NE(html.find("At equal time, 12 ms per frame: guiding.enabled=true, guiding.probability=0.5 wins "
+                      "with relmse 0.0833; the others' relmse is higher by: enabled=false 2.10x (per seed "
+                      "2.10 ± 0.14, 2 seeds)."),
+            std::string::npos)
+      << html.substr(summary, 1500);
+  EXPECT_NE(html.find("<table id=\"equal-time\">"), std::string::npos);
+  EXPECT_NE(html.find("Caution: 1 reference frame did not converge"), std::string::npos);
+  EXPECT_EQ(html.find("two different images"), std::string::npos);
+  // Rows from before results named their layers compared the sweep's layer with the reference's R, G, B.
+  t.write("out/sweep.json", R"({"scene": "demo.json", "reference": {"target": 0.05, "quantile": 0.95,
+    "min_spp": 64, "max_spp": 2048}, "layer": "volume"})");
+  const json data = haze::eval::report_data((t.path() / "out").string(), haze::eval::ReportOptions{});
+  EXPECT_EQ(data["layers"], json({{"test", "volume"}, {"reference", ""}}));
+  EXPECT_NE(haze::eval::report_summary(data)[1].find("Caution: these rows compared test layer volume, "
+                                                     "reference R, G, B, two different images"),
+            std::string::npos);
+}
+
 // --- rendering ------------------------------------------------------------------------------------------
 
 TEST(Reference, ConvergesToItsTargetAndIsCached) {
@@ -311,6 +416,96 @@ TEST(Reference, ConvergesToItsTargetAndIsCached) {
   r = run(fmt::format("reference {} --out {} --set haze.sigma_t=0.5", scene.string(), out));
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.out.find("holds the reference of another scene"), std::string::npos) << r.out;
+  // A PNG preview beside the EXR; rendered guided (the scene has a medium and a light).
+  int w = 0, h = 0, channels = 0;
+  EXPECT_TRUE(stbi_info(haze::eval::reference_png_path(out, 0).c_str(), &w, &h, &channels));
+  EXPECT_EQ(channels, 3);
+  EXPECT_EQ(info["frames"]["0"].count("note"), 0u);
+  EXPECT_NE(info["frames"]["0"]["features"].get<std::string>().find("guiding"), std::string::npos)
+      << info["frames"]["0"];
+}
+
+// A budget too small for the target: the reference says so, with its figures, in the terminal and in
+// reference.json; the checks aim at the target instead of doubling past it.
+TEST(Reference, SaysWhenItDidNotConverge) {
+  TempDir t("haze-ref");
+  const fs::path scene = t.write("scene.json", kScene);
+  const std::string out = (t.path() / "ref").string();
+  Result r =
+      run(fmt::format("reference {} --out {} --target 0.001 --min-spp 4 --max-spp 16", scene.string(), out));
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_NE(r.out.find("note: reference frame 0 did not converge: error "), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("after 16 spp"), std::string::npos) << r.out;
+  json info = json::parse(std::ifstream(fs::path(out) / "reference.json"));
+  EXPECT_FALSE(info["frames"]["0"]["converged"].get<bool>());
+  EXPECT_NE(info["frames"]["0"]["note"].get<std::string>().find("raise max_spp"), std::string::npos);
+  haze::eval::ReferenceOptions o;
+  o.target = 0.05;
+  o.max_spp = 10000;
+  EXPECT_EQ(haze::eval::next_check_spp(64, 0.1, o), 256);      // 4x at most
+  EXPECT_EQ(haze::eval::next_check_spp(64, 0.06, o), 102);     // 1.1 * 64 * 1.44 = 101.4
+  EXPECT_EQ(haze::eval::next_check_spp(64, 0.051, o), 74);     // close: 10% over
+  EXPECT_EQ(haze::eval::next_check_spp(5000, 0.1, o), 10000);  // the budget caps it
+  EXPECT_EQ(haze::eval::next_check_spp(64, INFINITY, o), 256);
+  EXPECT_EQ(haze::eval::next_check_spp(64, NAN, o), 256);
+}
+
+// A layer is compared with the same layer of the reference: the sweep's figures are those of `haze compare
+// --layer` on the run's saved frame and its reference (which fail if the sweep read another layer of either
+// side), the row names both layers, and a reference holds the denoised layers a denoised run is compared on.
+TEST(Sweep, ComparesALayerWithTheSameLayerOfTheReference) {
+  TempDir t("haze-sweep");
+  json scene = json::parse(kScene);
+  scene["surfaces"] =
+      json::parse(R"([{"mesh": {"kind": "plane", "size": [20, 20]}, "albedo": [0.7, 0.7, 0.7]}])");
+  t.write("scene.json", scene.dump());
+  const fs::path sweep = t.write("s.json", R"({"scene": "scene.json", "seeds": [3], "layer": "volume",
+    "reference": {"target": 0.1, "min_spp": 16, "max_spp": 64}})");
+  const fs::path out = t.path() / "out";
+  Result r = run(fmt::format("sweep {} --out {}", sweep.string(), out.string()));
+  ASSERT_EQ(r.code, 0) << r.out;
+  const auto rows = lines(out / "results.jsonl");
+  ASSERT_EQ(rows.size(), 1u);
+  const json row = json::parse(rows[0]);
+  EXPECT_EQ(row["layers"], json({{"test", "volume"}, {"reference", "volume"}}));
+  EXPECT_NE(r.out.find("(+ references: "), std::string::npos) << r.out;  // apart from the runs' ETA
+  const std::string test_exr = (out / row["images"][0].get<std::string>()).string();
+  const std::string ref_exr =
+      haze::eval::reference_frame_path((out / row["reference"].get<std::string>()).string(), 0);
+  for (const char* layer : {"volume", "", "denoised", "volume_denoised"}) {
+    r = run(fmt::format("compare {} {} --json{}", ref_exr, test_exr,
+                        *layer ? std::string(" --layer ") + layer : ""));
+    ASSERT_EQ(r.code, 0) << layer << ": " << r.out;
+    const json c = json::parse(r.out);
+    EXPECT_EQ(c["layers"], json({{"test", layer}, {"reference", layer}}));
+    const double relmse = c["mean"]["relmse"].get<double>();
+    if (std::string(layer) == "volume")
+      EXPECT_NEAR(row["metrics"]["relmse"].get<double>(), relmse, 1e-6 * relmse) << r.out;
+    else if (std::string(layer) == "")  // the plane makes R, G, B another image than the volume term
+      EXPECT_GT(std::abs(row["metrics"]["relmse"].get<double>() - relmse), 1e-3 * relmse) << r.out;
+  }
+  r = run(fmt::format("compare {} {} --layer volume", ref_exr, test_exr));
+  EXPECT_NE(r.out.find("test layer volume, reference layer volume"), std::string::npos) << r.out;
+  // The reference's denoised stand-in is its noisy composite.
+  const auto ref = haze::render::read_exr(ref_exr);
+  EXPECT_EQ(ref.channel("denoised.G"), ref.channel("G"));
+  EXPECT_EQ(ref.channel("volume_denoised.R"), ref.channel("volume.R"));
+}
+
+// render.time_budget_s as an axis: each run samples until its budget is spent, and says how many it took.
+TEST(Sweep, TimeBudgetAxis) {
+  TempDir t("haze-sweep");
+  t.write("scene.json", kScene);
+  const fs::path sweep = t.write("s.json", R"({"scene": "scene.json", "seeds": [5], "save_images": "none",
+    "axes": [{"path": "render.time_budget_s", "values": [0.02, 0.3]}]})");
+  Result r = run(fmt::format("sweep {} --out {}", sweep.string(), (t.path() / "out").string()));
+  ASSERT_EQ(r.code, 0) << r.out;
+  const auto rows = lines(t.path() / "out/results.jsonl");
+  ASSERT_EQ(rows.size(), 2u);
+  const json a = json::parse(rows[0]), b = json::parse(rows[1]);
+  EXPECT_GE(a["samples"].get<double>(), 1);
+  EXPECT_GT(b["samples"].get<double>(), 3 * a["samples"].get<double>()) << rows[0] << rows[1];
+  EXPECT_GE(b["time"]["render_s"].get<double>(), 0.3);
 }
 
 // Kills a sweep after its first finished run, tears the last row as a kill mid-write would, and runs the

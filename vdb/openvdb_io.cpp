@@ -280,13 +280,28 @@ std::vector<GridInfo> inspect(const std::string& path) {
   return out;
 }
 
-DeviceGrid load_grid(const std::string& path, const std::string& grid_name, NanPolicy nan) {
-  auto file = open_file(path);
-  std::vector<std::string> names = grid_names(*file);
+namespace {
+
+void require_grid(const openvdb::io::File& file, const std::string& path, const std::string& grid_name,
+                  const std::string& key) {
+  std::vector<std::string> names = grid_names(file);
   if (std::find(names.begin(), names.end(), grid_name) == names.end())
     throw Error(fmt::format(
-        "{}: no grid named '{}' (grids present: {}); set the grid name to one of these", path, grid_name,
-        names.empty() ? std::string("none") : fmt::format("'{}'", fmt::join(names, "', '"))));
+        "{}{}: no grid named '{}' (grids present: {}); set {} to one of these", key.empty() ? "" : key + ": ",
+        path, grid_name, names.empty() ? std::string("none") : fmt::format("'{}'", fmt::join(names, "', '")),
+        key.empty() ? std::string("the grid name") : key));
+}
+
+}  // namespace
+
+void check_grid_name(const std::string& path, const std::string& grid_name, const std::string& key) {
+  require_grid(*open_file(path), path, grid_name, key);
+}
+
+DeviceGrid load_grid(const std::string& path, const std::string& grid_name, NanPolicy nan,
+                     const std::string& key) {
+  auto file = open_file(path);
+  require_grid(*file, path, grid_name, key);
   openvdb::GridBase::Ptr base;
   try {
     ReadBudget budget(file_size(path));

@@ -51,7 +51,11 @@ enum class NanPolicy { Zero, Error };
 // corrupt, no grid with that name (lists the names present), grid not scalar float/half (says its type),
 // non-affine transform, empty grid, NaN/Inf values with NanPolicy::Error. Half grids load as float.
 // NaN/Inf anywhere in the tree (active or not, voxels, tiles, background) become 0 under NanPolicy::Zero.
-DeviceGrid load_grid(const std::string& path, const std::string& grid_name, NanPolicy nan = NanPolicy::Zero);
+// `key` is the scene key that names the grid ("media[0].grid"), for the message.
+DeviceGrid load_grid(const std::string& path, const std::string& grid_name, NanPolicy nan = NanPolicy::Zero,
+                     const std::string& key = "");
+// The check load_grid starts with, reading only the file's header: before the device starts.
+void check_grid_name(const std::string& path, const std::string& grid_name, const std::string& key);
 
 // Procedural volumes built with OpenVDB's tools. Voxel centres sit at integer multiples of voxel_size.
 struct ProceduralSpec {

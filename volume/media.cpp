@@ -62,9 +62,10 @@ DeviceMedia build_media(const scene::Scene& s, const DeviceMedia* previous) {
     std::string source =
         m.procedural ? "procedural " + m.procedural->dump() : resolve_path(s, m.file) + " " + m.grid;
     vdb::DeviceGrid density = grid_for(source, previous, [&] {
-      return m.procedural ? vdb::make_procedural(vdb::procedural_from_json(
-                                *m.procedural, (s.path.empty() ? "" : s.path + ": ") + where + ".procedural"))
-                          : vdb::load_grid(resolve_path(s, m.file), m.grid);
+      return m.procedural
+                 ? vdb::make_procedural(vdb::procedural_from_json(
+                       *m.procedural, (s.path.empty() ? "" : s.path + ": ") + where + ".procedural"))
+                 : vdb::load_grid(resolve_path(s, m.file), m.grid, vdb::NanPolicy::Zero, where + ".grid");
     });
     if (density.nan_voxels > 0)
       dm.notes.push_back(fmt::format("{}: {} NaN/Inf voxels replaced by 0", where, density.nan_voxels));
@@ -98,8 +99,10 @@ DeviceMedia build_media(const scene::Scene& s, const DeviceMedia* previous) {
     if (mode != 0) {
       if (separate_emission) {
         std::string e_source = resolve_path(s, m.file) + " " + m.emission.grid;
-        vdb::DeviceGrid e = grid_for(
-            e_source, previous, [&] { return vdb::load_grid(resolve_path(s, m.file), m.emission.grid); });
+        vdb::DeviceGrid e = grid_for(e_source, previous, [&] {
+          return vdb::load_grid(resolve_path(s, m.file), m.emission.grid, vdb::NanPolicy::Zero,
+                                where + ".emission.grid");
+        });
         dm.grid_sources.push_back(e_source);
         // The emission grid is read with the density grid's index transform: they must share it.
         if (e.index_to_world != dm.grids[density_index.back()].index_to_world)
