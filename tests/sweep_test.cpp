@@ -479,10 +479,11 @@ TEST(Sweep, ComparesALayerWithTheSameLayerOfTheReference) {
     const json c = json::parse(r.out);
     EXPECT_EQ(c["layers"], json({{"test", layer}, {"reference", layer}}));
     const double relmse = c["mean"]["relmse"].get<double>();
-    if (std::string(layer) == "volume")
+    if (std::string(layer) == "volume") {
       EXPECT_NEAR(row["metrics"]["relmse"].get<double>(), relmse, 1e-6 * relmse) << r.out;
-    else if (std::string(layer) == "")  // the plane makes R, G, B another image than the volume term
+    } else if (std::string(layer) == "") {  // the plane makes R, G, B another image than the volume term
       EXPECT_GT(std::abs(row["metrics"]["relmse"].get<double>() - relmse), 1e-3 * relmse) << r.out;
+    }
   }
   r = run(fmt::format("compare {} {} --layer volume", ref_exr, test_exr));
   EXPECT_NE(r.out.find("test layer volume, reference layer volume"), std::string::npos) << r.out;
