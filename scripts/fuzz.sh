@@ -7,6 +7,7 @@ cases=${1:-500}
 shift || true
 seeds=("$@")
 [ ${#seeds[@]} -eq 0 ] && seeds=(11 12 13 14)
+export HAZE_VALIDATION=0
 export HAZE_SHADER_CACHE=${HAZE_SHADER_CACHE:-$PWD/build/shader-cache}
 export MESA_SHADER_CACHE_DIR=${MESA_SHADER_CACHE_DIR:-$PWD/build/mesa-cache}
 status=0
