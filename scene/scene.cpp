@@ -170,6 +170,26 @@ namespace {
 Scene read_scene(const json& j, const ReadContext& ctx, const std::string& base_dir) {
   Scene s;
   read_params(j, s, ctx);
+  // A procedural medium has one grid, its density: a key naming another grid would be ignored, so only
+  // "density" is accepted, and the medium says "density" for both.
+  for (size_t i = 0; i < s.media.size(); ++i) {
+    Medium& m = s.media[i];
+    if (!m.procedural) continue;
+    const json& mj = j.at("media").at(i);
+    const bool emission_grid = mj.contains("emission") && mj["emission"].is_object() &&
+                               mj["emission"].contains("grid") && !mj["emission"]["grid"].is_null();
+    if (m.grid != "density")
+      ctx.fail(fmt::format("media[{}].grid", i),
+               fmt::format("\"{}\": a procedural medium has one grid, \"density\"; remove the key (or use a "
+                           ".vdb file)",
+                           m.grid));
+    if (emission_grid && m.emission.grid != "density")
+      ctx.fail(fmt::format("media[{}].emission.grid", i),
+               fmt::format("\"{}\": a procedural medium's emission is driven by its density; remove the key "
+                           "(or use a .vdb file that has that grid)",
+                           m.emission.grid));
+    m.emission.grid = "density";
+  }
   s.path = ctx.origin;
   s.base_dir = base_dir;
   for (auto& m : s.surfaces) {

@@ -204,6 +204,18 @@ TEST(SceneErrors, MediumNeedsExactlyOneSource) {
   read_error({{"media", {{{"procedural", {{"size", 1}}}}}}}, {"media[0].procedural.kind", "cloud"});
   // null means absent.
   read_error({{"media", {{{"procedural", nullptr}}}}}, {"media[0]:", "needs"});
+  // A procedural medium has no other grid to name (they used to mean "density" silently).
+  json named = procedural_medium();
+  named["grid"] = "smoke";
+  read_error({{"media", {named}}}, {"scene.json: media[0].grid", "\"smoke\"", "one grid, \"density\""});
+  json emitting = procedural_medium();
+  emitting["emission"] = {{"mode", "scale"}, {"grid", "temperature"}};
+  read_error({{"media", {emitting}}},
+             {"scene.json: media[0].emission.grid", "\"temperature\"", "driven by its density"});
+  emitting["emission"]["grid"] = "density";
+  EXPECT_EQ(hs::from_json({{"media", {emitting}}}, "scene.json", "").media[0].emission.grid, "density");
+  emitting["emission"].erase("grid");
+  EXPECT_EQ(hs::from_json({{"media", {emitting}}}, "scene.json", "").media[0].emission.grid, "density");
 }
 
 TEST(SceneErrors, NullSwitchesOptionalSectionsOff) {
@@ -281,7 +293,7 @@ TEST(SceneLoad, RelativeMediaFilesResolveAgainstTheSceneFolder) {
 // ---- overrides ----
 
 TEST(SceneOverrides, SetNestedValues) {
-  json j = {{"media", {procedural_medium()}}, {"camera", {{"position", {0, 1, 5}}}}};
+  json j = {{"media", {procedural_medium(), {{"file", "a.vdb"}}}}, {"camera", {{"position", {0, 1, 5}}}}};
   hs::apply_override(j, "render.spp=64", "scene.json");
   hs::apply_override(j, "media.0.density_scale=2", "scene.json");
   hs::apply_override(j, "media[0].albedo=[0.5, 0.6, 0.7]", "scene.json");
@@ -290,9 +302,9 @@ TEST(SceneOverrides, SetNestedValues) {
   hs::apply_override(j, "camera.target=0,2,0", "scene.json");
   hs::apply_override(j, "render.tonemap=reinhard", "scene.json");
   hs::apply_override(j, "render.outputs=exr,stats", "scene.json");
-  hs::apply_override(j, "media.0.grid=123", "scene.json");  // strings need no quotes
+  hs::apply_override(j, "media.1.grid=123", "scene.json");  // strings need no quotes
   hs::apply_override(j, "media.0.procedural.seed=9", "scene.json");
-  hs::apply_override(j, "media.0.emission={\"mode\": \"scale\", \"grid\": \"heat\"}", "scene.json");
+  hs::apply_override(j, "media.1.emission={\"mode\": \"scale\", \"grid\": \"heat\"}", "scene.json");
   hs::apply_override(j, "haze.sigma_t = 0.2", "scene.json");
   Scene s = hs::from_json(j, "scene.json", "");
   EXPECT_EQ(s.render.spp, 64);
@@ -304,9 +316,10 @@ TEST(SceneOverrides, SetNestedValues) {
   EXPECT_EQ(s.camera.target, glm::vec3(0, 2, 0));
   EXPECT_EQ(s.render.tonemap, "reinhard");
   EXPECT_EQ(s.render.outputs, (std::vector<std::string>{"exr", "stats"}));
-  EXPECT_EQ(s.media[0].grid, "123");
+  EXPECT_EQ(s.media[1].grid, "123");
   EXPECT_EQ((*s.media[0].procedural)["seed"], 9);
-  EXPECT_EQ(s.media[0].emission.mode, "scale");
+  EXPECT_EQ(s.media[1].emission.mode, "scale");
+  EXPECT_EQ(s.media[1].emission.grid, "heat");
   ASSERT_TRUE(s.haze);
   EXPECT_FLOAT_EQ(s.haze->sigma_t, 0.2f);
 
