@@ -103,6 +103,9 @@ void validate(Medium& m, const Where& w) {
     }
   }
   if (m.grid.empty()) w.fail("grid", "must name a float grid, e.g. \"density\"");
+  if (!glm::all(glm::lessThan(m.bounds_min, m.bounds_max)))
+    w.fail("bounds_max", fmt::format("must be greater than bounds_min in every component, got {} and {}",
+                                     vec_text(m.bounds_min), vec_text(m.bounds_max)));
   size_t runs = 0;
   for (size_t i = 0; i < m.file.size(); ++i) runs += m.file[i] == '#' && (i == 0 || m.file[i - 1] != '#');
   if (runs > 1) {

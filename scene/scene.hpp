@@ -63,6 +63,10 @@ struct Medium {
   float g = 0.f;              // HG anisotropy in [-1, 1]; the renderer clamps to +-0.99 and reports it
   Emission emission;
   Transform transform;
+  // World-space box the medium is clipped to: zero outside it, exactly (no trilinear fringe beyond a
+  // face). The defaults leave it unbounded.
+  glm::vec3 bounds_min{-1e30f};
+  glm::vec3 bounds_max{1e30f};
 };
 
 // A triangle mesh instance with a Lambertian material.
@@ -243,6 +247,10 @@ void reflect(V& v, Medium& m) {
   v.field("g", m.g, Range{-1, 1}, "Henyey-Greenstein anisotropy (clamped to +-0.99 by the renderer)");
   v.field("emission", m.emission, "emission from a grid");
   v.field("transform", m.transform, "placement of the volume in the world");
+  v.field(
+      "bounds_min", m.bounds_min,
+      "world-space box the medium is clipped to (zero outside it, exactly), lower corner; default unbounded");
+  v.field("bounds_max", m.bounds_max, "upper corner of that box; each component > bounds_min's");
 }
 
 template <class V>

@@ -160,6 +160,20 @@ TEST_F(Cli, FullDiskFailsLoudlyAndKeepsThePreviousOutputs) {
 
 // A valid but absurd emitter (1e20 per channel, squares 1e40 beyond float): every layer stays finite, and
 // stats.json counts the samples whose squares were clamped, every sample here since the plane fills the view.
+TEST_F(Cli, BoundsThatMissTheMediumAreAnError) {
+  const std::string scene = write("miss.json", R"({"camera": {"position": [0, 0, 5], "target": [0, 0, 0]},
+    "media": [{"procedural": {"kind": "box", "size": 1}, "bounds_min": [3, 3, 3], "bounds_max": [4, 4, 4]}],
+    "render": {"width": 8, "height": 8, "spp": 1}})");
+  auto r = run(fmt::format("render {} --out {}", scene, (dir / "o").string()));
+  EXPECT_EQ(r.code, 1) << r.out;
+  EXPECT_NE(
+      r.out.find("haze: error: " + scene + ": media[0].bounds_min/bounds_max: the box misses the medium"),
+      std::string::npos)
+      << r.out;
+  const std::string error = r.out.substr(r.out.find("haze: error:"));
+  EXPECT_EQ(std::count(error.begin(), error.end(), '\n'), 1) << r.out;  // one line
+}
+
 TEST_F(Cli, HugeEmitterStaysFiniteAndSaysSo) {
   const std::string scene = write("hot.json", R"({"camera": {"position": [0, 0, 1], "target": [0, 0, 0]},
     "surfaces": [{"mesh": {"kind": "plane", "size": [20, 20]}, "albedo": [0.7, 0.7, 0.7],

@@ -44,6 +44,16 @@ json box_medium(double scale, double albedo, double g) {
           {"g", g}};
 }
 
+// A constant box taller than the slab (by more than a voxel each side) clipped to it by media bounds: exactly
+// the homogeneous slab, with no trilinear ramp at y = 0 and y = 1.
+json bounded_box_medium(double scale, double albedo, double g) {
+  json m = box_medium(scale, albedo, g);
+  m["procedural"]["size"] = {8, 1.4, 8};
+  m["bounds_min"] = {-100, 0, -100};
+  m["bounds_max"] = {100, 1, 100};
+  return m;
+}
+
 // A procedural cloud of diameter 2 at the origin, 0.08 voxels.
 json cloud_medium(double density, int seed, const std::vector<double>& albedo, double g) {
   return {{"procedural",
@@ -182,10 +192,13 @@ json guided(json j, double P) {
   return j;
 }
 
-void check_sunlit_slab(bool hetero, double p_equiangular, double guide_p = -1) {
+// bounded: a VDB box clipped to the slab, against the homogeneous slab's reference.
+void check_sunlit_slab(bool hetero, double p_equiangular, double guide_p = -1, bool bounded = false) {
   const double sigma = 0.8, albedo = 0.7, g = 0.4, E = 2.0;
   json j = slab_camera();
-  if (hetero)
+  if (bounded)
+    j["media"] = {bounded_box_medium(sigma, albedo, g)};
+  else if (hetero)
     j["media"] = {box_medium(sigma, albedo, g)};
   else
     j["haze"] = haze_slab(sigma, albedo, g);
@@ -200,7 +213,7 @@ void check_sunlit_slab(bool hetero, double p_equiangular, double guide_p = -1) {
   double total;
   double top = 1.0;
   BoxProfile b{};
-  if (hetero) {
+  if (hetero && !bounded) {
     b = box_profile(r);
     rho = [&](double y) { return b.rho(y); };
     F = [&](double y) { return b.F(y); };
@@ -226,6 +239,27 @@ TEST(Estimator, SunlitHomogeneousSlabSingleScattering) {
 }
 TEST(Estimator, SunlitVdbSlabSingleScattering) {
   check_sunlit_slab(true, 0.5);
+}
+
+// media[].bounds: a constant grid clipped to the slab is the homogeneous slab, in transmittance (ratio
+// tracking, closed form) and in single scattering of the sun.
+TEST(Estimator, BoundedVdbBoxIsTheHomogeneousSlab) {
+  json j = slab_camera();
+  j["media"] = {bounded_box_medium(1.5, 0.5, 0)};
+  scene::Scene s = make_scene(j);
+  render::Renderer r(context(), s);
+  r.add_samples(256);
+  EXPECT_NEAR(r.media().majorant.world_min.y, 0.f, 1e-6);
+  EXPECT_NEAR(r.media().majorant.world_max.y, 1.f, 1e-6);
+  Estimate e = estimate(r, ACC_T, ACC_T2);
+  auto dirs = camera_directions(s);
+  std::vector<double> ref;
+  for (auto d : dirs) ref.push_back(std::exp(-1.5 / d.y));
+  double z = z_score(e, ref);
+  EXPECT_LT(std::abs(z), kZ) << "z = " << z;
+  std::cout << "z = " << z << "\n";
+  EXPECT_EQ(context().validation_messages(), 0u);
+  check_sunlit_slab(true, 0.5, -1, true);
 }
 
 // Airlight: an isotropic point light in unbounded homogeneous fog, single scattering. The reference is the

@@ -138,6 +138,10 @@ TEST(SceneErrors, RangeMessagesNameTheJsonPath) {
   read_error({{"render", {{"seed", -1}}}}, {"render.seed", "got -1"});
   read_error({{"render", {{"seed", 4294967296LL}}}}, {"render.seed", "4294967295"});
   read_error({{"haze", {{"sigma_t", 1e39}}}}, {"haze.sigma_t", "32-bit float"});
+  j = {{"media", {procedural_medium()}}};
+  j["media"][0]["bounds_min"] = {0, 0, 0};
+  j["media"][0]["bounds_max"] = {1, 0, 1};
+  read_error(j, {"scene.json: media[0].bounds_max", "greater than bounds_min"});
 }
 
 TEST(SceneErrors, WrongTypes) {

@@ -382,6 +382,7 @@ struct Medium {
   DeviceGrid grid;
   glm::dmat4 o2w;
   double scale;
+  glm::dvec3 clip_min{-1e300}, clip_max{1e300};  // zero outside
 };
 
 // sum over media of scale * trilinear density at world point p, against the majorant cell containing p.
@@ -406,7 +407,9 @@ void check_conservative(const std::vector<Medium>& media, const MajorantGrid& ma
     }
     double sigma = 0;
     for (size_t k = 0; k < media.size(); ++k)
-      sigma += media[k].scale * samplers[k].trilinear(glm::dvec3(w2i[k] * glm::dvec4(p, 1.0)));
+      if (glm::all(glm::greaterThanEqual(p, media[k].clip_min)) &&
+          glm::all(glm::lessThanEqual(p, media[k].clip_max)))
+        sigma += media[k].scale * samplers[k].trilinear(glm::dvec3(w2i[k] * glm::dvec4(p, 1.0)));
     glm::ivec3 c = glm::clamp(glm::ivec3(glm::floor((p - lo) / cell)), glm::ivec3(0), maj.res - 1);
     float m = maj.at(c);
     if (sigma > m && ++failures < 10)
@@ -466,6 +469,42 @@ TEST_F(VdbTest, MajorantConservativeUnderRotationAndScale) {
   glm::dvec3 c0 = glm::dvec3(media[0].o2w * media[0].grid.index_to_world *
                              glm::dvec4(glm::dvec3(media[0].grid.index_min - 1), 1.0));
   EXPECT_LE(maj.world_min.x, c0.x + 1e-6);
+}
+
+// A medium clipped to a box: the grid's bounds shrink to the box, no cell outside it holds the medium, and
+// the bound stays conservative (also where a cell face meets the box's face) and as tight as unclipped.
+TEST_F(VdbTest, MajorantRespectsClipBoxes) {
+  ProceduralSpec cloud;
+  cloud.kind = "cloud";
+  cloud.voxel_size = 0.04;
+  cloud.size = glm::dvec3(1.2);
+  std::vector<Medium> media(2);
+  media[0] = {make_procedural(cloud), glm::rotate(glm::dmat4(1), 0.5, glm::dvec3(0, 1, 0)), 2.0,
+              glm::dvec3(-0.3, -1, -1), glm::dvec3(0.25, 0.2, 1)};
+  media[1] = {make_procedural(cloud), glm::translate(glm::dmat4(1), {2, 0, 0}), 1.0};
+  std::vector<MajorantInput> in;
+  for (const auto& m : media) in.push_back({&m.grid, m.o2w, m.scale, m.clip_min, m.clip_max});
+  for (int res : {8, 33, 64}) {
+    MajorantGrid maj = build_majorant(in, res);
+    EXPECT_NEAR(maj.world_min.x, -0.3, 1e-6);  // the clip box's face, not the rotated cloud's
+    double tight = 0;
+    check_conservative(media, maj, 20000, 7 + res, &tight);
+    EXPECT_GT(tight, res >= 33 ? 0.4 : 0.2) << res;
+    // Cells wholly left of x = 1.3 and above y = 0.2 lie outside the clipped medium and before the second.
+    glm::dvec3 cell = (glm::dvec3(maj.world_max) - glm::dvec3(maj.world_min)) / glm::dvec3(maj.res);
+    for (int z = 0; z < maj.res.z; ++z)
+      for (int y = 0; y < maj.res.y; ++y)
+        for (int x = 0; x < maj.res.x; ++x) {
+          glm::dvec3 c0 = glm::dvec3(maj.world_min) + cell * glm::dvec3(x, y, z), c1 = c0 + cell;
+          if (c1.x < 1.3 && c0.y > 0.2 + 1e-9) {
+            EXPECT_EQ(maj.at({x, y, z}), 0.f) << x << " " << y << " " << z;
+          }
+        }
+  }
+  // Clipped away entirely: it adds nothing, and the grid covers the other medium only.
+  in[0].clip_min = glm::dvec3(5);
+  in[0].clip_max = glm::dvec3(6);
+  EXPECT_GT(build_majorant(in, 16).world_min.x, 1.0);
 }
 
 TEST_F(VdbTest, MajorantAxisAlignedBox) {

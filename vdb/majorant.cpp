@@ -158,8 +158,9 @@ MajorantGrid build_majorant(const std::vector<MajorantInput>& media, int resolut
     const DeviceGrid* g;
     glm::dmat4 w2i;
     double scale;
-    glm::ivec3 lo, hi;  // index bbox dilated by one voxel
-    glm::dvec3 wmin, wmax;
+    glm::ivec3 lo, hi;      // index bbox dilated by one voxel
+    glm::dvec3 wmin, wmax;  // its world box, clipped
+    glm::dvec3 clip_min, clip_max;
   };
   std::vector<Medium> ms;
   glm::dvec3 wmin(std::numeric_limits<double>::max()), wmax = -wmin;
@@ -181,17 +182,23 @@ MajorantGrid build_majorant(const std::vector<MajorantInput>& media, int resolut
              in.grid->index_min - 1,
              in.grid->index_max + 1,
              glm::dvec3(std::numeric_limits<double>::max()),
-             glm::dvec3(-std::numeric_limits<double>::max())};
+             glm::dvec3(-std::numeric_limits<double>::max()),
+             in.clip_min,
+             in.clip_max};
     for (int c = 0; c < 8; ++c) {
       glm::dvec3 p(c & 1 ? m.hi.x : m.lo.x, c & 2 ? m.hi.y : m.lo.y, c & 4 ? m.hi.z : m.lo.z);
       glm::dvec3 w(i2w * glm::dvec4(p, 1.0));
       m.wmin = glm::min(m.wmin, w);
       m.wmax = glm::max(m.wmax, w);
     }
+    m.wmin = glm::max(m.wmin, m.clip_min);
+    m.wmax = glm::min(m.wmax, m.clip_max);
+    if (glm::any(glm::greaterThan(m.wmin, m.wmax))) continue;  // clipped away: nothing to bound
     wmin = glm::min(wmin, m.wmin);
     wmax = glm::max(wmax, m.wmax);
     ms.push_back(m);
   }
+  if (ms.empty()) return out;
   // Round the bounds outward to float and use those from here on: the GPU finds cells from the float values.
   for (int a = 0; a < 3; ++a) {
     out.world_min[a] = round_down(wmin[a]);
@@ -228,11 +235,14 @@ MajorantGrid build_majorant(const std::vector<MajorantInput>& media, int resolut
       for (int z = r.begin(); z < r.end(); ++z)
         for (int y = c0.y; y <= c1.y; ++y)
           for (int x = c0.x; x <= c1.x; ++x) {
-            // Index-space box of the cell, then every voxel whose trilinear support reaches into it: a point
-            // p reads voxels floor(p) and floor(p) + 1 on each axis.
+            // Index-space box of the cell's part inside the clip box, then every voxel whose trilinear
+            // support reaches into it: a point p reads voxels floor(p) and floor(p) + 1 on each axis.
+            const glm::dvec3 w0 = glm::max(lo + cell * glm::dvec3(x, y, z), m.clip_min),
+                             w1 = glm::min(lo + cell * glm::dvec3(x + 1, y + 1, z + 1), m.clip_max);
+            if (glm::any(glm::greaterThan(w0, w1))) continue;
             glm::dvec3 a(std::numeric_limits<double>::max()), b = -a;
             for (int c = 0; c < 8; ++c) {
-              glm::dvec3 w = lo + cell * glm::dvec3(x + (c & 1), y + ((c >> 1) & 1), z + ((c >> 2) & 1));
+              glm::dvec3 w(c & 1 ? w1.x : w0.x, c & 2 ? w1.y : w0.y, c & 4 ? w1.z : w0.z);
               glm::dvec3 p(m.w2i * glm::dvec4(w, 1.0));
               a = glm::min(a, p);
               b = glm::max(b, p);

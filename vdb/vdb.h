@@ -102,11 +102,14 @@ void write_grids(const std::vector<VoxelGrid>& grids, const std::string& out_pat
 // World-space majorant grid over several media. Conservative for trilinear interpolation at voxel centres:
 // each cell holds >= scale * max of every voxel (active or not) whose trilinear support (+-1 voxel) overlaps
 // the cell, summed over media. Each medium is taken to be zero outside its index bbox dilated by one voxel
-// (the renderer clips media to those boxes). Values carry a 1e-5 relative margin for float rounding.
+// and outside its clip box (the renderer clips media to both). Values carry a 1e-5 relative margin for float
+// rounding.
 struct MajorantInput {
   const DeviceGrid* grid;
   glm::dmat4 object_to_world;
   double density_scale;
+  // World box the medium is clipped to (zero outside); default unbounded.
+  glm::dvec3 clip_min{-1e300}, clip_max{1e300};
 };
 struct MajorantGrid {
   glm::ivec3 res{0};

@@ -7,6 +7,7 @@
 #include <cstring>
 #include <filesystem>
 #include <glm/gtc/matrix_transform.hpp>
+#include <limits>
 
 namespace haze::volume {
 
@@ -49,6 +50,13 @@ vdb::DeviceGrid grid_for(const std::string& source, const DeviceMedia* previous,
   return make();
 }
 
+// The device's float box one ulp wider (the majorant must cover every point the shader counts inside).
+glm::dvec3 outward(glm::vec4 v, float dir) {
+  glm::dvec3 r;
+  for (int a = 0; a < 3; ++a) r[a] = std::nextafter(v[a], dir * std::numeric_limits<float>::infinity());
+  return r;
+}
+
 }  // namespace
 
 DeviceMedia build_media(const scene::Scene& s, const DeviceMedia* previous) {
@@ -84,6 +92,14 @@ DeviceMedia build_media(const scene::Scene& s, const DeviceMedia* previous) {
       lo = glm::min(lo, w);
       hi = glm::max(hi, w);
     }
+    // A bounded medium is zero outside its box: the same test clips it exactly.
+    lo = glm::max(lo, glm::dvec3(m.bounds_min));
+    hi = glm::min(hi, glm::dvec3(m.bounds_max));
+    if (glm::any(glm::greaterThan(lo, hi)))
+      throw vdb::Error(
+          fmt::format("{}{}.bounds_min/bounds_max: the box misses the medium (whose world box is "
+                      "dilated by a voxel); widen it or move it over the medium",
+                      s.path.empty() ? "" : s.path + ": ", where));
     g.world_min = glm::vec4(glm::vec3(lo), m.density_scale);
     g.world_max = glm::vec4(glm::vec3(hi), m.emission.scale);
     uint32_t mode = m.emission.mode == "scale" ? 1u : m.emission.mode == "blackbody" ? 2u : 0u;
@@ -119,7 +135,8 @@ DeviceMedia build_media(const scene::Scene& s, const DeviceMedia* previous) {
   }
   // Majorant inputs point into dm.grids, which no longer reallocates.
   for (size_t i = 0; i < s.media.size(); ++i)
-    maj_in.push_back({&dm.grids[density_index[i]], object_to_world[i], double(s.media[i].density_scale)});
+    maj_in.push_back({&dm.grids[density_index[i]], object_to_world[i], double(s.media[i].density_scale),
+                      outward(dm.media[i].world_min, -1), outward(dm.media[i].world_max, 1)});
   dm.majorant = vdb::build_majorant(maj_in, s.render.majorant_resolution);
   return dm;
 }
