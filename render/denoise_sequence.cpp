@@ -23,9 +23,10 @@ const char* const kNeeds =
 
 // One frame's inputs in the layouts the denoiser reads.
 struct FrameInputs {
-  std::vector<float> colour;   // 3 floats per pixel, demodulated
-  std::vector<float> gbuffer;  // G_STRIDE floats per pixel
-  std::vector<float> volume;   // 3 floats per pixel
+  std::vector<float> colour;    // 3 floats per pixel, demodulated
+  std::vector<float> gbuffer;   // G_STRIDE floats per pixel
+  std::vector<float> volume;    // 3 floats per pixel
+  std::vector<float> emission;  // surface_emission.R/G/B (kept out of surface_demod), or empty
 };
 
 class Layers {
@@ -108,6 +109,13 @@ FrameInputs frame_inputs(const ExrImage& img, const std::string& file) {
       f.colour[p * 3 + c] = demod ? v[p] : v[p] / div;
     }
   }
+  if (demod && L.has("surface_emission.R") && L.has("surface_emission.G") && L.has("surface_emission.B")) {
+    f.emission.resize(pixels * 3);
+    for (int c = 0; c < 3; ++c) {
+      const auto& v = img.channel(fmt::format("surface_emission.{}", rgb[c]));
+      for (size_t p = 0; p < pixels; ++p) f.emission[p * 3 + c] = v[p];
+    }
+  }
   f.volume.assign(pixels * 3, 0.f);
   if (L.has("volume.R") && L.has("volume.G") && L.has("volume.B"))
     for (int c = 0; c < 3; ++c) {
@@ -142,7 +150,7 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
   outs.check("stats.json");
 
   std::unique_ptr<denoise::Svgf> svgf;
-  gpu::Buffer colour, volume, ldr;
+  gpu::Buffer colour, emission, volume, ldr;
   gpu::PixelLayers gbuf, prev;
   gpu::Kernel tonemap;
   gpu::Timer timer(ctx);
@@ -157,6 +165,7 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
       H = img.height;
       const size_t pixels = size_t(W) * H;
       colour = gpu::Buffer(ctx, "input colour", "per-frame temporaries", pixels * 12, "3 x f32");
+      emission = gpu::Buffer(ctx, "input emission", "per-frame temporaries", pixels * 12, "3 x f32");
       volume = gpu::Buffer(ctx, "input volume", "per-frame temporaries", pixels * 12, "3 x f32");
       gbuf = gpu::PixelLayers(ctx, "g-buffer", "per-frame temporaries", pixels, kGBufferLayers);
       prev = gpu::PixelLayers(ctx, "previous g-buffer", "previous-frame data", pixels, kPrevGBufferLayers);
@@ -169,6 +178,7 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
     }
     FrameInputs in = frame_inputs(img, file);
     colour.upload(in.colour);
+    if (!in.emission.empty()) emission.upload(in.emission);
     volume.upload(in.volume);
     gbuf.upload(in.gbuffer);
     if (i == 0) prev.upload(in.gbuffer);
@@ -176,6 +186,7 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
     ctx.submit_and_wait([&](VkCommandBuffer cmd) {
       timer.reset(cmd);
       denoise::SvgfInputs si{&colour, 3, 0, &gbuf, &prev, &gbuf[glsl::G_MOTION / 4], 4, glsl::G_MOTION % 4};
+      if (!in.emission.empty()) si.emission = &emission;
       svgf->run(cmd, &timer, si);
       timer.begin(cmd, "tonemap");
       gpu::Bindings b;

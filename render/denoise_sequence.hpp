@@ -13,7 +13,8 @@ namespace haze::render {
 // The layers a frame must have (names as haze writes them; docs in README):
 //   surface_demod.R/G/B (or R/G/B, divided here by albedo), albedo.R/G/B, normal.X/Y/Z, depth.Z, motion.X/Y;
 // optional: depth_gradient.X/Y (else forward differences of depth), instance.ID (else 0 on surfaces),
-// depth_prev.Z (else depth), volume.R/G/B (added back for the denoised composite; else 0).
+// depth_prev.Z (else depth), volume.R/G/B (added back for the denoised composite; else 0),
+// surface_emission.R/G/B (with surface_demod: added back after remodulation; else 0).
 // Frames are the folder's .exr files in name order. Writes, per frame, OUT/<name>.exr with the layers
 // denoised, surface_denoised, surface_history and surface_denoised_variance, and OUT/<name>.png; returns
 // the stats (also written to OUT/stats.json). `settings` supplies denoise.surface and render.exposure and
