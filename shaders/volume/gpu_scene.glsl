@@ -52,8 +52,8 @@ struct GpuScene {
 // divided by the albedo of the first surface hit, per sample: the surface denoiser's input) and acc_vp, the
 // virtual point sums: VP_WT and VP_W are sum(Y t) and sum(Y) over the distance samples (Y: luminance of
 // each one's volume contribution); VP_G and VP_GN sum the mean of the guide state each sample chose, and
-// count them; acc_emit, the emission of the camera's surface hits (kept out of acc_demod: the denoiser adds it
-// back after remodulation).
+// count them; acc_emit, the emission of the camera's surface hits (kept out of acc_demod: the denoiser adds
+// it back after remodulation).
 const uint ACC_L = 0u, ACC_T = 3u, ACC_L2 = 4u, ACC_T2 = 7u, ACC_VOL = 8u, ACC_DEPTH = 11u;
 const uint ACC_VOL2 = 12u, ACC_SURF = 16u, ACC_SURF2 = 20u, ACC_DEMOD = 24u, ACC_DEMOD2 = 28u;
 const uint ACC_VP_WT = 32u, ACC_VP_W = 33u, ACC_VP_G = 34u, ACC_VP_GN = 35u;
