@@ -107,6 +107,7 @@ void Svgf::create_kernels() {
   filter_pass_ = make(std::move(f.push(4).specialize({classic, subsampled})));
   gpu::KernelDecl t = decl("taa");
   gbuffer(t, "");
+  t.buffer("emission", pixels * 12);
   t.buffer("motion", pixels * 8).buffer("filtered", half4).buffer("prev_output", half4).buffer("outp", half4);
   taa_pass_ = make(std::move(t.push(4)));
 }
@@ -114,9 +115,10 @@ void Svgf::create_kernels() {
 void Svgf::set_params(const SvgfParams& params) {
   bool rebuild = !accumulate_pass_.valid() || params.mode != params_.mode || params.kernel != params_.kernel;
   params_ = params;
-  const glm::uvec4 layout = gpu_.layout_in;
+  const glm::uvec4 layout = gpu_.layout_in, flags = gpu_.flags;
   gpu_ = gpu_params(params_, width_, height_, remodulate_);
   gpu_.layout_in = layout;
+  gpu_.flags = glm::uvec4(gpu_.flags.x, flags.y, flags.z, flags.w);
   gpu_dirty_ = true;
   if (rebuild) create_kernels();
 }
@@ -134,10 +136,17 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
   };
   check(*in.colour, in.colour_stride, in.colour_offset, 3, "colour");
   check(*in.motion, in.motion_stride, in.motion_offset, 2, "motion");
+  if (in.emission && !remodulate_)
+    throw gpu::Error(fmt::format("svgf.{}: an emission input needs a remodulating instance", name_));
+  if (in.emission) check(*in.emission, in.emission_stride, in.emission_offset, 3, "emission");
   // The parameter buffer changes only with set_params() or the inputs' layout.
   const glm::uvec4 layout(in.colour_stride, in.colour_offset, in.motion_stride, in.motion_offset);
-  if (gpu_dirty_ || gpu_.layout_in != layout) {
+  const glm::uvec3 emission =
+      in.emission ? glm::uvec3(in.emission_stride, in.emission_offset, 1) : glm::uvec3(0);
+  if (gpu_dirty_ || gpu_.layout_in != layout ||
+      glm::uvec3(gpu_.flags.y, gpu_.flags.z, gpu_.flags.w) != emission) {
     gpu_.layout_in = layout;
+    gpu_.flags = glm::uvec4(gpu_.flags.x, emission);
     vkCmdUpdateBuffer(cmd, params_buf_.handle(), 0, sizeof(gpu_), &gpu_);
     gpu::compute_barrier(cmd);
     gpu_dirty_ = false;
@@ -145,6 +154,7 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
   // What every pass may read: the parameters, the inputs and the G-buffers.
   gpu::Bindings common;
   common.set("params", params_buf_).set("colour", *in.colour).set("motion", *in.motion);
+  common.set("emission", in.emission ? *in.emission : *in.colour);  // not read when flags.w = 0
   in.gbuffer->bind(common);
   in.prev_gbuffer->bind(common);
 

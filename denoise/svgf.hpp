@@ -35,6 +35,10 @@ struct SvgfInputs {
   const gpu::PixelLayers* prev_gbuffer = nullptr;
   const gpu::Buffer* motion = nullptr;
   uint32_t motion_stride = 2, motion_offset = 0;
+  // Optional, remodulating instances only: the emission kept out of the demodulated colour (rgb); it
+  // bypasses the filters and is added after remodulation.
+  const gpu::Buffer* emission = nullptr;
+  uint32_t emission_stride = 3, emission_offset = 0;
 };
 
 // Downloaded output: remodulated colour after TAA, the history length, and the variance of the filtered

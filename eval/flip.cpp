@@ -314,8 +314,7 @@ FlipResult flip_ldr(const Channels& test, const Channels& ref, int width, int he
                 o.want_map);
 }
 
-FlipResult flip_hdr(const Channels& test, const Channels& ref, int width, int height, const FlipOptions& o) {
-  check(test, ref, width, height, o);
+FlipExposures flip_hdr_exposures(const Channels& ref) {
   // Exposure range (EG 2021, section 3): the start exposure takes the reference's brightest luminance,
   // the stop exposure its median, to t = 0.85 of the tone mapper's range.
   constexpr double t_max = 0.85, t_min = 0.85;
@@ -323,22 +322,27 @@ FlipResult flip_hdr(const Channels& test, const Channels& ref, int width, int he
   for (size_t p = 0; p < ref.pixels; ++p)
     Y[p] =
         ref.count == 1 ? ref.at(p, 0) : 0.2126 * ref.at(p, 0) + 0.7152 * ref.at(p, 1) + 0.0722 * ref.at(p, 2);
-  const double Y_max = *std::max_element(Y.begin(), Y.end());
-  double start = 0, stop = 0;
+  const double Y_max = Y.empty() ? 0 : *std::max_element(Y.begin(), Y.end());
+  FlipExposures e;
   if (Y_max > 0) {
-    // Median as numpy's percentile 50 (mean of the middle two). Departure from the paper: where more
-    // than half the reference is black the median is 0 and the range infinite, so the median of the
-    // positive luminances stands in.
+    // Median as NVIDIA's FLIP C++ tool takes it: the sorted value at index n/2 (for even n the upper
+    // of the middle two, not their mean). Departure from the paper: where more than half the reference
+    // is black the median is 0 and the range infinite, so the median of the positive luminances stands in.
     std::vector<double> y = Y;
     if (std::count_if(y.begin(), y.end(), [](double v) { return v > 0; }) * 2 <= ptrdiff_t(y.size()))
       std::erase_if(y, [](double v) { return v <= 0; });
-    std::sort(y.begin(), y.end());
-    const size_t n = y.size();
-    const double Y_median = n % 2 ? y[n / 2] : 0.5 * (y[n / 2 - 1] + y[n / 2]);
-    start = std::log2(tone_map_inverse(t_max) / Y_max);
-    stop = Y_median > 0 ? std::log2(tone_map_inverse(t_min) / Y_median) : start;
+    std::nth_element(y.begin(), y.begin() + y.size() / 2, y.end());
+    const double Y_median = y[y.size() / 2];
+    e.start = std::log2(tone_map_inverse(t_max) / Y_max);
+    e.stop = Y_median > 0 ? std::log2(tone_map_inverse(t_min) / Y_median) : e.start;
   }
-  const int exposures = std::max(2, int(std::ceil(stop - start)));
+  e.count = std::max(2, int(std::ceil(e.stop - e.start)));
+  return e;
+}
+
+FlipResult flip_hdr(const Channels& test, const Channels& ref, int width, int height, const FlipOptions& o) {
+  check(test, ref, width, height, o);
+  const auto [start, stop, exposures] = flip_hdr_exposures(ref);
   const double step = (stop - start) / (exposures - 1);
 
   const Features features(o.ppd);

@@ -29,6 +29,13 @@ struct FlipResult {
 // LDR-FLIP clamps the linear values to [0, 1] first (HDR data: everything above 1 reads as 1).
 FlipResult flip_ldr(const Channels& test, const Channels& ref, int width, int height,
                     const FlipOptions& o = {});
+// HDR-FLIP's exposure range from the reference: start and stop in stops (log2 of the scale), count >= 2
+// exposures evenly spaced from start to stop (docs/metrics.md).
+struct FlipExposures {
+  double start = 0, stop = 0;
+  int count = 2;
+};
+FlipExposures flip_hdr_exposures(const Channels& ref);
 // HDR-FLIP: LDR-FLIP of exposure-compensated, tone-mapped pairs over an exposure range taken from the
 // reference, the per-pixel maximum. Not symmetric: the exposure range comes from ref only.
 FlipResult flip_hdr(const Channels& test, const Channels& ref, int width, int height,

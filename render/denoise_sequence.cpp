@@ -6,6 +6,7 @@
 #include <cmath>
 #include <filesystem>
 #include <map>
+#include <optional>
 
 #include "denoise/svgf.hpp"
 #include "render/output.hpp"
@@ -23,9 +24,11 @@ const char* const kNeeds =
 
 // One frame's inputs in the layouts the denoiser reads.
 struct FrameInputs {
-  std::vector<float> colour;   // 3 floats per pixel, demodulated
-  std::vector<float> gbuffer;  // G_STRIDE floats per pixel
-  std::vector<float> volume;   // 3 floats per pixel
+  std::vector<float> colour;         // 3 floats per pixel, demodulated
+  std::vector<float> gbuffer;        // G_STRIDE floats per pixel
+  std::vector<float> volume;         // 3 floats per pixel
+  std::vector<float> volume_motion;  // 2 floats per pixel (volume_motion.X/Y), or empty
+  std::vector<float> emission;       // surface_emission.R/G/B (kept out of surface_demod), or empty
 };
 
 class Layers {
@@ -52,6 +55,26 @@ class Layers {
   const ExrImage& img_;
   std::string file_;
 };
+
+bool has_layer(const ExrImage& img, const char* name) {
+  return std::find(img.channels.begin(), img.channels.end(), name) != img.channels.end();
+}
+
+bool has_volume(const ExrImage& img) {
+  return has_layer(img, "volume.R") && has_layer(img, "volume.G") && has_layer(img, "volume.B");
+}
+
+// Whether a sequence has a volume signal to denoise (the renderer's test is "the scene has a medium"): the
+// first frame has volume_motion.X/Y (haze writes it only where its volume instance ran) or a non-zero
+// volume layer.
+bool volume_signal(const ExrImage& img) {
+  if (!has_volume(img)) return false;
+  if (has_layer(img, "volume_motion.X") && has_layer(img, "volume_motion.Y")) return true;
+  for (const char* c : {"volume.R", "volume.G", "volume.B"})
+    for (float v : img.channel(c))
+      if (v != 0) return true;
+  return false;
+}
 
 FrameInputs frame_inputs(const ExrImage& img, const std::string& file) {
   using namespace glsl;
@@ -108,12 +131,27 @@ FrameInputs frame_inputs(const ExrImage& img, const std::string& file) {
       f.colour[p * 3 + c] = demod ? v[p] : v[p] / div;
     }
   }
+  if (demod && L.has("surface_emission.R") && L.has("surface_emission.G") && L.has("surface_emission.B")) {
+    f.emission.resize(pixels * 3);
+    for (int c = 0; c < 3; ++c) {
+      const auto& v = img.channel(fmt::format("surface_emission.{}", rgb[c]));
+      for (size_t p = 0; p < pixels; ++p) f.emission[p * 3 + c] = v[p];
+    }
+  }
   f.volume.assign(pixels * 3, 0.f);
-  if (L.has("volume.R") && L.has("volume.G") && L.has("volume.B"))
+  if (has_volume(img))
     for (int c = 0; c < 3; ++c) {
       const auto& v = img.channel(fmt::format("volume.{}", rgb[c]));
       for (size_t p = 0; p < pixels; ++p) f.volume[p * 3 + c] = v[p];
     }
+  if (L.has("volume_motion.X") && L.has("volume_motion.Y")) {
+    const auto *vx = &L.finite("volume_motion.X"), *vy = &L.finite("volume_motion.Y");
+    f.volume_motion.resize(pixels * 2);
+    for (size_t p = 0; p < pixels; ++p) {
+      f.volume_motion[p * 2] = (*vx)[p];
+      f.volume_motion[p * 2 + 1] = (*vy)[p];
+    }
+  }
   return f;
 }
 
@@ -141,8 +179,11 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
     for (const char* ext : {".exr", ".png"}) outs.check(f.stem().string() + ext);
   outs.check("stats.json");
 
-  std::unique_ptr<denoise::Svgf> svgf;
-  gpu::Buffer colour, volume, ldr;
+  std::unique_ptr<denoise::Svgf> svgf, svgf_volume;
+  gpu::Buffer colour, emission, volume, volume_motion, ldr;
+  // The volume instance runs where the first frame has a volume signal; it reprojects with the virtual
+  // points' motion (volume_motion.X/Y) when the sequence has it and denoise.volume_motion asks for it.
+  bool volume_motion_used = false;
   gpu::PixelLayers gbuf, prev;
   gpu::Kernel tonemap;
   gpu::Timer timer(ctx);
@@ -157,29 +198,66 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
       H = img.height;
       const size_t pixels = size_t(W) * H;
       colour = gpu::Buffer(ctx, "input colour", "per-frame temporaries", pixels * 12, "3 x f32");
+      emission = gpu::Buffer(ctx, "input emission", "per-frame temporaries", pixels * 12, "3 x f32");
       volume = gpu::Buffer(ctx, "input volume", "per-frame temporaries", pixels * 12, "3 x f32");
       gbuf = gpu::PixelLayers(ctx, "g-buffer", "per-frame temporaries", pixels, kGBufferLayers);
       prev = gpu::PixelLayers(ctx, "previous g-buffer", "previous-frame data", pixels, kPrevGBufferLayers);
-      tonemap = gpu::Kernel(ctx, tonemap_decl(pixels, true, false));
+      const bool volume_instance = settings.denoise.volume.enabled && volume_signal(img);
+      tonemap = gpu::Kernel(ctx, tonemap_decl(pixels, true, volume_instance));
       ldr = gpu::Buffer(ctx, "preview", "outputs", pixels * 4, "RGBA8");
       svgf = std::make_unique<denoise::Svgf>(ctx, "surface", settings.denoise.surface, W, H, true);
+      if (volume_instance) {
+        svgf_volume = std::make_unique<denoise::Svgf>(ctx, "volume", settings.denoise.volume, W, H, false);
+        volume_motion_used =
+            settings.denoise.volume_motion == "virtual_points" &&
+            std::find(img.channels.begin(), img.channels.end(), "volume_motion.X") != img.channels.end();
+        if (volume_motion_used)
+          volume_motion =
+              gpu::Buffer(ctx, "input volume motion", "per-frame temporaries", pixels * 8, "2 x f32");
+      }
     } else if (img.width != W || img.height != H) {
       throw Error(fmt::format("{}: {}x{} differs from the first frame's {}x{}; a sequence has one size", file,
                               img.width, img.height, W, H));
     }
     FrameInputs in = frame_inputs(img, file);
+    if (svgf_volume && !has_volume(img))
+      throw Error(
+          fmt::format("{}: no volume.R/G/B layers, which the first frame has; a sequence has the same "
+                      "layers in every frame",
+                      file));
+    if (volume_motion_used && in.volume_motion.empty())
+      throw Error(
+          fmt::format("{}: no volume_motion.X/Y layers, which the first frame has; a sequence has the "
+                      "same layers in every frame",
+                      file));
     colour.upload(in.colour);
+    if (!in.emission.empty()) emission.upload(in.emission);
     volume.upload(in.volume);
+    if (volume_motion_used) volume_motion.upload(in.volume_motion);
     gbuf.upload(in.gbuffer);
     if (i == 0) prev.upload(in.gbuffer);
     const TonemapPush tp = tonemap_push(settings.render, uint32_t(W * H), {0, 0}, {3, 0});
     ctx.submit_and_wait([&](VkCommandBuffer cmd) {
       timer.reset(cmd);
       denoise::SvgfInputs si{&colour, 3, 0, &gbuf, &prev, &gbuf[glsl::G_MOTION / 4], 4, glsl::G_MOTION % 4};
+      if (!in.emission.empty()) si.emission = &emission;
       svgf->run(cmd, &timer, si);
+      if (svgf_volume) {
+        denoise::SvgfInputs vi = si;
+        vi.colour = &volume;
+        vi.emission = nullptr;
+        if (volume_motion_used) {
+          vi.motion = &volume_motion;
+          vi.motion_stride = 2;
+          vi.motion_offset = 0;
+        }
+        svgf_volume->run(cmd, &timer, vi);
+      }
       timer.begin(cmd, "tonemap");
       gpu::Bindings b;
-      b.set("surface", svgf->output()).set("volume", volume).set("ldr", ldr);
+      b.set("surface", svgf->output())
+          .set("volume", svgf_volume ? svgf_volume->output() : volume)
+          .set("ldr", ldr);
       tonemap.dispatch_1d(cmd, b, &tp, tp.pixels);
       timer.end(cmd);
       gpu::compute_barrier(cmd);
@@ -192,37 +270,54 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
     }
     denoise::SvgfResult res = svgf->download();
     const size_t pixels = size_t(W) * H;
-    std::vector<std::vector<float>> planes(8, std::vector<float>(pixels));
+    std::optional<denoise::SvgfResult> vres;
+    if (svgf_volume) vres = svgf_volume->download();
+    std::vector<std::vector<float>> planes(13, std::vector<float>(pixels));
     for (size_t p = 0; p < pixels; ++p) {
       for (int c = 0; c < 3; ++c) {
-        planes[c][p] = res.colour[p][c] + in.volume[p * 3 + c];
+        const float v = vres ? vres->colour[p][c] : in.volume[p * 3 + c];
+        planes[c][p] = res.colour[p][c] + v;
         planes[3 + c][p] = res.colour[p][c];
+        planes[8 + c][p] = v;
       }
       planes[6][p] = res.history[p];
       planes[7][p] = res.variance[p];
+      if (vres) {
+        planes[11][p] = vres->history[p];
+        planes[12][p] = vres->variance[p];
+      }
     }
     const std::string stem = files[i].stem().string();
-    write_exr_channels(outs.stage(stem + ".exr"), W, H,
-                       {{"denoised.R", &planes[0]},
-                        {"denoised.G", &planes[1]},
-                        {"denoised.B", &planes[2]},
-                        {"surface_denoised.R", &planes[3]},
-                        {"surface_denoised.G", &planes[4]},
-                        {"surface_denoised.B", &planes[5]},
-                        {"surface_history.Y", &planes[6]},
-                        {"surface_denoised_variance.Y", &planes[7]}});
+    std::vector<std::pair<std::string, const std::vector<float>*>> layers = {
+        {"denoised.R", &planes[0]},         {"denoised.G", &planes[1]},
+        {"denoised.B", &planes[2]},         {"surface_denoised.R", &planes[3]},
+        {"surface_denoised.G", &planes[4]}, {"surface_denoised.B", &planes[5]},
+        {"surface_history.Y", &planes[6]},  {"surface_denoised_variance.Y", &planes[7]}};
+    if (vres)
+      layers.insert(layers.end(), {{"volume_denoised.R", &planes[8]},
+                                   {"volume_denoised.G", &planes[9]},
+                                   {"volume_denoised.B", &planes[10]},
+                                   {"volume_history.Y", &planes[11]},
+                                   {"volume_denoised_variance.Y", &planes[12]}});
+    write_exr_channels(outs.stage(stem + ".exr"), W, H, layers);
     write_png_rgb8(outs.stage(stem + ".png"), W, H, ldr.download_vector<uint32_t>());
     frames.push_back({{"input", file}, {"gpu_ms", total}});
   }
   nlohmann::json passes = nlohmann::json::object();
   for (auto& [pass, ms] : times) passes[pass] = PassStats{ms}.to_json();
-  nlohmann::json st = {{"device", ctx.describe()},
-                       {"input", in_dir},
-                       {"size", {W, H}},
-                       {"denoise", scene::to_json(settings)["denoise"]["surface"]},
-                       {"frames", frames},
-                       {"passes", passes},
-                       {"memory", ctx.ledger().to_json()}};
+  nlohmann::json st = {
+      {"device", ctx.describe()},
+      {"input", in_dir},
+      {"size", {W, H}},
+      {"denoise", scene::to_json(settings)["denoise"]["surface"]},
+      // The volume instance: null where it did not run, else its settings and motion.
+      {"volume_denoise", svgf_volume
+                             ? nlohmann::json{{"settings", scene::to_json(settings)["denoise"]["volume"]},
+                                              {"motion", volume_motion_used ? "virtual_points" : "surface"}}
+                             : nlohmann::json()},
+      {"frames", frames},
+      {"passes", passes},
+      {"memory", ctx.ledger().to_json()}};
   write_json(outs.stage("stats.json"), st);
   outs.commit();
   return st;

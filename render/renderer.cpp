@@ -8,18 +8,20 @@
 
 namespace haze::render {
 
-const std::vector<std::string> kAccumulationLayers = {
-    "acc_l", "acc_l2", "acc_vol", "acc_vol2", "acc_surf", "acc_surf2", "acc_demod", "acc_demod2", "acc_vp"};
-const std::vector<std::string> kResolvedLayers = {"out_l",   "out_vol",   "out_surf",
-                                                  "out_var", "out_demod", "out_demod_m2"};
+const std::vector<std::string> kAccumulationLayers = {"acc_l",    "acc_l2",    "acc_vol",   "acc_vol2",
+                                                      "acc_surf", "acc_surf2", "acc_demod", "acc_demod2",
+                                                      "acc_vp",   "acc_emit"};
+const std::vector<std::string> kResolvedLayers = {"out_l",     "out_vol",      "out_surf", "out_var",
+                                                  "out_demod", "out_demod_m2", "out_emit"};
 const std::vector<std::string> kGBufferLayers = {"g_depth", "g_normal", "g_albedo"};
 const std::vector<std::string> kPrevGBufferLayers = {"prev_g_depth", "prev_g_normal", "prev_g_albedo"};
 
 namespace {
 
 // The host offsets of the GLSL headers and the layer lists above describe the same layers.
-static_assert(glsl::ACC_STRIDE == 4 * 9 && glsl::ACC_VP_WT == 4 * 8);
-static_assert(glsl::OUT_STRIDE == 4 * 6 && glsl::OUT_VPDEPTH == 4 * 1 + 3 && glsl::OUT_DEMOD == 4 * 4);
+static_assert(glsl::ACC_STRIDE == 4 * 10 && glsl::ACC_VP_WT == 4 * 8 && glsl::ACC_EMIT == 4 * 9);
+static_assert(glsl::OUT_STRIDE == 4 * 7 && glsl::OUT_VPDEPTH == 4 * 1 + 3 && glsl::OUT_DEMOD == 4 * 4 &&
+              glsl::OUT_EMIT == 4 * 6);
 static_assert(glsl::G_STRIDE == 4 * 3 && glsl::G_MOTION == 4 * 1 + 2);
 
 // Where a layer's float `offset` (OUT_*, G_*) lives: the layer's index.
@@ -315,9 +317,13 @@ Image Renderer::resolve() {
     if (svgf_surface_) {
       in.colour = &out_[layer_of(glsl::OUT_DEMOD)];
       in.colour_offset = glsl::OUT_DEMOD % 4;
+      in.emission = &out_[layer_of(glsl::OUT_EMIT)];  // added back after remodulation
+      in.emission_stride = 4;
+      in.emission_offset = glsl::OUT_EMIT % 4;
       svgf_surface_->run(cmd, timer_.get(), in);
     }
     if (svgf_volume_) {
+      in.emission = nullptr;
       in.colour = &vol;
       in.colour_offset = glsl::OUT_VOL % 4;
       if (scene_.denoise.volume_motion == "virtual_points") {

@@ -696,6 +696,59 @@ TEST_F(Cli, DenoiseAnExrSequence) {
                         "denoise.surface.phi_luminance");
 }
 
+// haze denoise runs the volume instance too where the sequence has a volume signal: on haze's own frames of
+// a hazy scene it reproduces the renderer's volume layers (virtual-point motion) and the composite.
+TEST_F(Cli, DenoiseAnExrSequenceWithAVolume) {
+  std::string s = write("haze.json", R"({
+    "camera": {"position": [0, 1, 4], "target": [0, 0.5, 0]},
+    "surfaces": [{"mesh": {"kind": "box", "size": [3, 0.2, 3]}, "albedo": [0.7, 0.6, 0.5]}],
+    "haze": {"sigma_t": 0.3, "albedo": [0.9, 0.9, 0.9], "bounded": true,
+             "bounds_min": [-1.5, 0.1, -1.5], "bounds_max": [1.5, 1.5, 1.5]},
+    "lights": {"sun": {"direction": [0.3, 1, 0.2]}},
+    "render": {"width": 32, "height": 24, "spp": 2, "max_depth": 2},
+    "animation": {"tracks": [{"path": "camera.position",
+                              "keys": [{"frame": 0, "value": [0, 1, 4]}, {"frame": 2, "value": [0.4, 1, 3.8]}]}]}
+  })");
+  auto r = run(fmt::format("render {} --out {}", s, (dir / "r").string()));
+  ASSERT_EQ(r.code, 0) << r.out;
+  auto d = run(fmt::format("denoise {} --out {}", (dir / "r").string(), (dir / "d").string()));
+  ASSERT_EQ(d.code, 0) << d.out;
+  for (int f = 0; f <= 2; ++f) {
+    auto a = haze::render::read_exr((dir / fmt::format("r/frame_{:04d}.exr", f)).string());
+    auto b = haze::render::read_exr((dir / fmt::format("d/frame_{:04d}.exr", f)).string());
+    for (const char* c : {"denoised.R", "surface_denoised.G", "volume_denoised.R", "volume_denoised.B",
+                          "volume_history.Y", "volume_denoised_variance.Y"}) {
+      const auto &u = a.channel(c), &v = b.channel(c);
+      double worst = 0, scale = 1e-3;
+      for (size_t i = 0; i < u.size(); ++i) {
+        worst = std::max(worst, double(std::abs(u[i] - v[i])));
+        scale = std::max(scale, double(std::abs(u[i])));
+      }
+      EXPECT_LE(worst, 1e-3 * scale) << "frame " << f << " " << c;
+    }
+  }
+  auto st = nlohmann::json::parse(std::ifstream(dir / "d/stats.json"));
+  EXPECT_TRUE(st["passes"].contains("svgf.volume.accumulate"));
+  EXPECT_EQ(st["volume_denoise"]["motion"], "virtual_points");
+  // With the instance switched off the volume term is the noisy one and no volume layer is written.
+  auto off = run(fmt::format("denoise {} --out {} --set denoise.volume.enabled=false", (dir / "r").string(),
+                             (dir / "off").string()));
+  ASSERT_EQ(off.code, 0) << off.out;
+  auto o = haze::render::read_exr((dir / "off/frame_0002.exr").string());
+  EXPECT_EQ(std::count(o.channels.begin(), o.channels.end(), "volume_denoised.R"), 0);
+  EXPECT_TRUE(nlohmann::json::parse(std::ifstream(dir / "off/stats.json"))["volume_denoise"].is_null());
+  // A later frame without the volume layers the first frame has: the file is named, nothing is written.
+  auto f1 = haze::render::read_exr((dir / "r/frame_0001.exr").string());
+  std::vector<std::pair<std::string, const std::vector<float>*>> kept;
+  for (size_t c = 0; c < f1.channels.size(); ++c)
+    if (f1.channels[c].rfind("volume", 0) != 0) kept.push_back({f1.channels[c], &f1.data[c]});
+  haze::render::write_exr_channels((dir / "r/frame_0001.exr").string(), f1.width, f1.height, kept);
+  auto bad = run(fmt::format("denoise {} --out {}", (dir / "r").string(), (dir / "bad").string()));
+  expect_one_line_error(bad, "frame_0001.exr");
+  EXPECT_NE(bad.out.find("volume"), std::string::npos) << bad.out;
+  EXPECT_FALSE(fs::exists(dir / "bad/frame_0000.exr"));
+}
+
 // haze compare on two hand-made EXRs, on sequences, and its bad inputs.
 TEST_F(Cli, CompareImagesAndSequences) {
   auto exr = [&](const std::string& name, std::vector<float> v, int w = 2) {

@@ -134,17 +134,27 @@ TEST(Svgf, StaticSceneConvergesFarBelowTheInputError) {
   for (const char* m : {"adaptive", "classic"}) {
     Rig rig(W, H, mode(m));
     std::mt19937 rng(7);
-    double input = 0, output = 0;
+    double input = 0, output = 0, mean_ratio = 0;
+    double ref_mean = 0;
+    for (size_t p = 0; p < f.reference.size(); ++p) ref_mean += glsl::luminance(f.expected(p));
     for (int t = 0; t < 64; ++t) {
       auto x = noisy(f, rng, 1.0);
       if (t == 63) input = rel_mse(f, x, false);
       SvgfResult r = rig.run(f, x);
       if (t == 63) output = rel_mse(f, r.colour, true);
       for (const glm::vec3& c : r.colour) ASSERT_TRUE(std::isfinite(c.x + c.y + c.z));
+      // Energy: the denoised mean luminance over frames 16-63 against the reference's.
+      double mean = 0;
+      for (const glm::vec3& c : r.colour) mean += glsl::luminance(c);
+      if (t >= 16) mean_ratio += mean / ref_mean / 48;
     }
     std::cout << m << ": relMSE of the 1-spp input " << input << ", after 64 frames " << output << " ("
-              << input / output << "x lower)\n";
-    EXPECT_LT(output, input / 20) << m;
+              << input / output << "x lower); mean luminance over frames 16-63 / the reference's "
+              << mean_ratio << "\n";
+    EXPECT_LT(output, input / 200) << m;  // measured 650x (adaptive), 715x (classic)
+    // Measured -1.0% (adaptive) and -2.1% (classic: its luminance edge stopping favours the darker side
+    // of skewed noise; the 2% goal is not met there yet, docs/denoising.md).
+    EXPECT_LT(std::abs(mean_ratio - 1), std::string(m) == "adaptive" ? 0.02 : 0.03) << m;
   }
   EXPECT_EQ(context().validation_messages(), 0u);
 }
@@ -219,7 +229,11 @@ TEST(Svgf, FirefliesDoNotSpreadAndNonFiniteInputNeverReachesTheOutput) {
     }
     std::cout << m << ": worst relative error of a firefly's 9x9 neighbourhood " << worst << "\n";
     if (std::string(m) == "adaptive") {
-      EXPECT_LT(worst, 0.25);
+      EXPECT_LT(worst, 0.015);  // measured 0.0048
+    } else {
+      // Classic mode has no firefly clamp: the 1e6 spreads (measured +291%), within 3x either way.
+      EXPECT_GT(worst, 1.0);
+      EXPECT_LT(worst, 9.0);
     }
   }
   EXPECT_EQ(context().validation_messages(), 0u);
@@ -293,6 +307,81 @@ TEST(Svgf, MotionLeavingTheScreenReusesTheBorder) {
     const double expected_edge = std::string(m) == "adaptive" ? 2.0 : 1.0;
     EXPECT_NEAR(edge, expected_edge, 1e-3);
     EXPECT_NEAR(inner, 8.0, 1e-3);
+  }
+  EXPECT_EQ(context().validation_messages(), 0u);
+}
+
+// Each percentile-driven mechanism changes the output when switched off: the firefly clamp (firefly_bias
+// so large that only the hard clamp firefly_max is left), the adaptive history cap (adapt_strength 0) and
+// border reuse (border_history 1).
+TEST(Svgf, EachPercentileMechanismMattersWhenSwitchedOff) {
+  const int W = 64, H = 48;
+  {
+    Frame f = two_planes(W, H);
+    auto halo = [&](const SvgfParams& p) {
+      Rig rig(W, H, p);
+      std::mt19937 rng(3);
+      for (int t = 0; t < 32; ++t) rig.run(f, noisy(f, rng, 4.0));
+      auto x = noisy(f, rng, 4.0);
+      x[size_t(20) * W + 20] = glm::vec3(1e6f);
+      SvgfResult r = rig.run(f, x);
+      double out = 0, ref = 0;
+      for (int dy = -4; dy <= 4; ++dy)
+        for (int dx = -4; dx <= 4; ++dx) {
+          size_t q = size_t(20 + dy) * W + (20 + dx);
+          out += glsl::luminance(r.colour[q]);
+          ref += glsl::luminance(f.expected(q));
+        }
+      return std::abs(out / ref - 1);
+    };
+    SvgfParams off;
+    off.firefly_bias = 1e30f;
+    const double on_err = halo(SvgfParams{}), off_err = halo(off);
+    std::cout << "firefly halo: clamp on " << on_err << ", off " << off_err << "\n";
+    EXPECT_GT(off_err, 6 * on_err);  // measured 0.0054 on, 0.10 off
+  }
+  {
+    Frame dim = two_planes(W, H, 0.25f), bright = two_planes(W, H, 1.f);
+    auto recover = [&](const SvgfParams& p) {
+      Rig rig(W, H, p);
+      std::mt19937 rng(11);
+      for (int t = 0; t < 32; ++t) rig.run(dim, noisy(dim, rng, 16.0));
+      return frames_to_recover(rig, rng, bright, 16.0);
+    };
+    SvgfParams off;
+    off.adapt_strength = 0;
+    const int on_frames = recover(SvgfParams{}), off_frames = recover(off);
+    std::cout << "light on: frames to recover with adaptivity " << on_frames << ", without " << off_frames
+              << "\n";
+    EXPECT_GT(off_frames, 3 * on_frames);  // measured 3, and not within 40 frames without
+  }
+  {
+    Frame f(W, H);
+    for (size_t p = 0; p < f.g.size(); ++p) {
+      f.g[p] = {2.f, {0, 0, 1}, glm::vec3(0.5f), 0, {3.f, 0.f}};
+      f.reference[p] = glm::vec3(0.6f);
+    }
+    auto edge = [&](const SvgfParams& p) {
+      Rig rig(W, H, p);
+      std::mt19937 rng(9);
+      SvgfResult r;
+      for (int t = 0; t < 8; ++t) r = rig.run(f, noisy(f, rng, 16.0));
+      double h = 0;
+      for (int y = 0; y < H; ++y) h += r.history[size_t(y) * W + (W - 1)] / H;
+      return std::make_pair(h, r.colour);
+    };
+    SvgfParams off;
+    off.border_history = 1;
+    const auto [h_on, c_on] = edge(SvgfParams{});
+    const auto [h_off, c_off] = edge(off);
+    double diff = 0;
+    for (int y = 0; y < H; ++y)
+      diff += glm::length(c_on[size_t(y) * W + W - 1] - c_off[size_t(y) * W + W - 1]);
+    std::cout << "border: history at the entering edge with reuse " << h_on << ", without " << h_off
+              << "; mean colour change there " << diff / H << "\n";
+    EXPECT_NEAR(h_on, 2.0, 1e-3);
+    EXPECT_NEAR(h_off, 1.0, 1e-3);
+    EXPECT_GT(diff / H, 2e-3);  // measured 0.0054
   }
   EXPECT_EQ(context().validation_messages(), 0u);
 }

@@ -136,6 +136,24 @@ TEST(Flip, HandComputedUniformImages) {
               0.232820, 1e-5);
 }
 
+// The HDR stop exposure takes the reference's median luminance as NVIDIA's FLIP C++ does: the sorted value
+// at index n/2. On a two-level checkerboard (32 pixels at 0.5, 32 at 2) that is 2, the maximum, so the
+// range is one exposure wide; the mean of the middle two (1.25) would stretch it by log2(2 / 1.25).
+TEST(Flip, HdrMedianIsTheSortedValueAtHalf) {
+  std::vector<float> board;
+  for (int p = 0; p < 64; ++p) {
+    const float v = (p % 8 + p / 8) % 2 ? 2.f : 0.5f;
+    board.insert(board.end(), {v, v, v});
+  }
+  const FlipExposures e = flip_hdr_exposures(rgb(board));
+  EXPECT_NEAR(e.start, std::log2(2.11887 / 2), 1e-5);
+  EXPECT_DOUBLE_EQ(e.stop, e.start);
+  EXPECT_EQ(e.count, 2);
+  // Odd count: the middle value, the same either way (0.5 below it, 2 above).
+  board.insert(board.end(), {1.f, 1.f, 1.f});
+  EXPECT_NEAR(flip_hdr_exposures(rgb(board)).stop, std::log2(2.11887 / 1), 1e-5);
+}
+
 TEST(Flip, ErrorMapOnRequest) {
   const std::vector<float> ref = scene(), test = plus(ref, noise(ref.size(), 3), 0.2f);
   for (bool hdr : {false, true}) {

@@ -6,7 +6,7 @@
 struct SvgfGpuParams {
   uvec4 size;        // width, height, percentile blocks x, y
   uvec4 layout_in;   // colour: float stride and offset per pixel; motion: stride, offset
-  uvec4 flags;       // x: remodulate by albedo (1) or not (0)
+  uvec4 flags;       // x: remodulate by albedo (1) or not (0); y, z: emission stride, offset; w: has emission
   vec4 accumulate;   // x: a (alpha = max(1 - a, 1/n)), y: max history, z: adaptivity strength s, w: k_a
   vec4 percentiles;  // firefly low, up; adaptivity low, up (quantiles in [0, 1])
   vec4 firefly;      // x: bias, y: k_f, z: hard clamp (max luminance)

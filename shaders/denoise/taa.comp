@@ -1,7 +1,8 @@
 #version 460
-// SVGF pass 5: remodulation by albedo and temporal anti-aliasing. The previous output, fetched
-// bilinearly at the reprojected position, is clamped to the current 3x3 neighbourhood (its min/max box,
-// or mean +- gamma sigma) and blended: out = mix(current, clamped history, blend).
+// SVGF pass 5: remodulation by albedo (plus the emission kept out of the demodulation) and temporal
+// anti-aliasing. The previous output, fetched bilinearly at the reprojected position, is clamped to the
+// current 3x3 neighbourhood (its min/max box, or mean +- gamma sigma) and blended:
+// out = mix(current, clamped history, blend).
 #extension GL_GOOGLE_include_directive : require
 layout(local_size_x = 8, local_size_y = 8) in;
 
@@ -9,6 +10,10 @@ layout(local_size_x = 8, local_size_y = 8) in;
 
 layout(std430, binding = BINDING_motion) readonly buffer Motion {
   float motion[];
+};
+// The emission kept out of the demodulated input (flags.w = 1), added back unfiltered.
+layout(std430, binding = BINDING_emission) readonly buffer Emission {
+  float emission[];
 };
 layout(std430, binding = BINDING_filtered) readonly buffer Filtered {
   uvec2 filtered[];  // demodulated rgb, sigma
@@ -31,8 +36,15 @@ vec3 remodulation(uint p) {
   return P.flags.x != 0u ? demod_albedo(g_load(p)) : vec3(1.0f);
 }
 
+vec3 emitted(uint p) {
+  if (P.flags.w == 0u) return vec3(0.0f);
+  uint i = p * P.flags.y + P.flags.z;
+  return vec3(emission[i], emission[i + 1u], emission[i + 2u]);
+}
+
 vec3 current(uint p) {
-  return unpack_half4(filtered[p]).rgb * remodulation(p);
+  vec3 albedo = remodulation(p);
+  return unpack_half4(filtered[p]).rgb * albedo + emitted(p);
 }
 
 void main() {
@@ -42,7 +54,7 @@ void main() {
   uint p = pix.y * W + pix.x;
   vec4 f = unpack_half4(filtered[p]);
   vec3 albedo = remodulation(p);
-  vec3 cur = f.rgb * albedo;
+  vec3 cur = f.rgb * albedo + emitted(p);
   float sigma = f.w * luminance(albedo);
   vec3 result = cur;
   uint mb = p * P.layout_in.z + P.layout_in.w;

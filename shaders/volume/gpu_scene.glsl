@@ -52,18 +52,21 @@ struct GpuScene {
 // divided by the albedo of the first surface hit, per sample: the surface denoiser's input) and acc_vp, the
 // virtual point sums: VP_WT and VP_W are sum(Y t) and sum(Y) over the distance samples (Y: luminance of
 // each one's volume contribution); VP_G and VP_GN sum the mean of the guide state each sample chose, and
-// count them.
+// count them; acc_emit, the emission of the camera's surface hits (kept out of acc_demod: the denoiser adds
+// it back after remodulation).
 const uint ACC_L = 0u, ACC_T = 3u, ACC_L2 = 4u, ACC_T2 = 7u, ACC_VOL = 8u, ACC_DEPTH = 11u;
 const uint ACC_VOL2 = 12u, ACC_SURF = 16u, ACC_SURF2 = 20u, ACC_DEMOD = 24u, ACC_DEMOD2 = 28u;
 const uint ACC_VP_WT = 32u, ACC_VP_W = 33u, ACC_VP_G = 34u, ACC_VP_GN = 35u;
-const uint ACC_STRIDE = 36u;
+const uint ACC_EMIT = 36u;
+const uint ACC_STRIDE = 40u;
 
 // Resolved means: out_l (L, depth), out_vol (volume term, virtual point depth: 0 where none), out_surf
 // (surface term, transmittance), out_var (sample variance of L), out_demod, out_demod_m2 (the demodulated
-// surface term and its second moment).
+// surface term and its second moment), out_emit (the camera hits' emission).
 const uint OUT_L = 0u, OUT_DEPTH = 3u, OUT_VOL = 4u, OUT_VPDEPTH = 7u, OUT_SURF = 8u, OUT_T = 11u;
 const uint OUT_VAR = 12u, OUT_DEMOD = 16u, OUT_DEMOD_M2 = 20u;
-const uint OUT_STRIDE = 24u;
+const uint OUT_EMIT = 24u;
+const uint OUT_STRIDE = 28u;
 
 // Counters of one frame (the binding "counters", uint each): samples whose radiance was not finite (dropped,
 // counted as zero samples), and samples with a square clamped at SQUARE_MAX so that the sums of squares of

@@ -27,6 +27,7 @@ PIXEL_LAYER(acc_surf);
 PIXEL_LAYER(acc_surf2);
 PIXEL_LAYER(acc_demod);
 PIXEL_LAYER(acc_demod2);
+PIXEL_LAYER(acc_emit);
 PIXEL_LAYER(acc_vp);
 layout(std430, binding = BINDING_counters) buffer Counters {
   uint counters[];  // COUNT_*
@@ -103,6 +104,7 @@ void main() {
 
   vec3 L_surf = vec3(0.0f), L_vol = vec3(0.0f);
   vec3 albedo0 = vec3(1.0f);  // albedo of the camera's surface hit, for demodulation
+  vec3 E_surf = vec3(0.0f);   // the camera hit's emission (in L_surf, kept out of the demodulated term)
   float T_surf = 1.0f;
 
   // Distance sampling on the camera ray: q(t) = (1 - P) [p_base q_base(t) + p_ea q_ea(t)] + P q_guide(t).
@@ -164,6 +166,7 @@ void main() {
 #if HAZE_SURFACES
         GpuInstance inst = instances[cam_h.instance];
         L_surf = r.T * inst.emission.rgb;
+        E_surf = L_surf;
         x = cam_o + cam_d * t_s;
         n = dot(cam_h.normal, cam_d) < 0.0f ? cam_h.normal : -cam_h.normal;
         alb = surface_albedo(cam_h);
@@ -396,13 +399,16 @@ void main() {
   }
 
   vec3 L = L_surf + L_vol;
-  vec3 demod = L_surf / max(albedo0, vec3(DEMOD_MIN_ALBEDO));
+  // Emission is not shaded by the albedo: dividing it by a dark albedo would make it a firefly for the
+  // denoiser, which adds acc_emit back after remodulation instead.
+  vec3 demod = (L_surf - E_surf) / max(albedo0, vec3(DEMOD_MIN_ALBEDO));
   // Non-finite values never enter the sums (extreme inputs are clamped, not propagated).
   if (any(isnan(L)) || any(isinf(L)) || any(isnan(demod)) || any(isinf(demod))) {
     L = vec3(0.0f);
     L_vol = vec3(0.0f);
     L_surf = vec3(0.0f);
     demod = vec3(0.0f);
+    E_surf = vec3(0.0f);
     atomicAdd(counters[COUNT_NON_FINITE], 1u);
   }
   bool clamped = false;
@@ -414,6 +420,7 @@ void main() {
   acc_surf2[pixel] += vec4(square_capped(L_surf, clamped), 0.0f);
   acc_demod[pixel] += vec4(demod, 0.0f);
   acc_demod2[pixel] += vec4(square_capped(demod, clamped), 0.0f);
+  acc_emit[pixel] += vec4(E_surf, 0.0f);
   if (clamped) atomicAdd(counters[COUNT_CLAMPED_SQUARES], 1u);
   acc_vp[pixel] += vec4(vp_wt, vp_w, vp_g, vp_gn);
 }
