@@ -628,6 +628,25 @@ TEST_F(Cli, BadMeshesAndTexturesAreNamed) {
   EXPECT_NE(ts["memory"].dump().find("albedo textures"), std::string::npos);
 }
 
+// The largest difference in a channel of two frames, over the larger of 1e-3 and the first frame's peak.
+double relative_difference(const haze::render::ExrImage& a, const haze::render::ExrImage& b, const char* c) {
+  const auto &u = a.channel(c), &v = b.channel(c);
+  double worst = 0, scale = 1e-3;
+  for (size_t i = 0; i < u.size(); ++i) {
+    worst = std::max(worst, double(std::abs(u[i] - v[i])));
+    scale = std::max(scale, double(std::abs(u[i])));
+  }
+  return worst / scale;
+}
+
+// Renders `scene` into dir/r, then haze denoise over dir/r into dir/d.
+void render_and_denoise(const std::string& scene, const fs::path& dir) {
+  auto r = run(fmt::format("render {} --out {}", scene, (dir / "r").string()));
+  ASSERT_EQ(r.code, 0) << r.out;
+  auto d = run(fmt::format("denoise {} --out {}", (dir / "r").string(), (dir / "d").string()));
+  ASSERT_EQ(d.code, 0) << d.out;
+}
+
 // haze denoise on haze's own EXR sequence reproduces the renderer's denoised layers (same inputs, same
 // instance), and bad sequences are named.
 TEST_F(Cli, DenoiseAnExrSequence) {
@@ -640,23 +659,14 @@ TEST_F(Cli, DenoiseAnExrSequence) {
     "animation": {"tracks": [{"path": "camera.position",
                               "keys": [{"frame": 0, "value": [0, 1, 4]}, {"frame": 2, "value": [0.4, 1, 3.8]}]}]}
   })");
-  auto r = run(fmt::format("render {} --out {}", s, (dir / "r").string()));
-  ASSERT_EQ(r.code, 0) << r.out;
-  auto d = run(fmt::format("denoise {} --out {}", (dir / "r").string(), (dir / "d").string()));
-  ASSERT_EQ(d.code, 0) << d.out;
+  ASSERT_NO_FATAL_FAILURE(render_and_denoise(s, dir));
   for (int f = 0; f <= 2; ++f) {
     auto a = haze::render::read_exr((dir / fmt::format("r/frame_{:04d}.exr", f)).string());
     auto b = haze::render::read_exr((dir / fmt::format("d/frame_{:04d}.exr", f)).string());
     EXPECT_TRUE(fs::exists(dir / fmt::format("d/frame_{:04d}.png", f)));
     for (const char* c :
          {"denoised.R", "surface_denoised.G", "surface_history.Y", "surface_denoised_variance.Y"}) {
-      const auto &u = a.channel(c), &v = b.channel(c);
-      double worst = 0, scale = 1e-3;
-      for (size_t i = 0; i < u.size(); ++i) {
-        worst = std::max(worst, double(std::abs(u[i] - v[i])));
-        scale = std::max(scale, double(std::abs(u[i])));
-      }
-      EXPECT_LE(worst, 1e-3 * scale) << "frame " << f << " " << c;
+      EXPECT_LE(relative_difference(a, b, c), 1e-3) << "frame " << f << " " << c;
     }
   }
   auto st = nlohmann::json::parse(std::ifstream(dir / "d/stats.json"));
@@ -709,22 +719,13 @@ TEST_F(Cli, DenoiseAnExrSequenceWithAVolume) {
     "animation": {"tracks": [{"path": "camera.position",
                               "keys": [{"frame": 0, "value": [0, 1, 4]}, {"frame": 2, "value": [0.4, 1, 3.8]}]}]}
   })");
-  auto r = run(fmt::format("render {} --out {}", s, (dir / "r").string()));
-  ASSERT_EQ(r.code, 0) << r.out;
-  auto d = run(fmt::format("denoise {} --out {}", (dir / "r").string(), (dir / "d").string()));
-  ASSERT_EQ(d.code, 0) << d.out;
+  ASSERT_NO_FATAL_FAILURE(render_and_denoise(s, dir));
   for (int f = 0; f <= 2; ++f) {
     auto a = haze::render::read_exr((dir / fmt::format("r/frame_{:04d}.exr", f)).string());
     auto b = haze::render::read_exr((dir / fmt::format("d/frame_{:04d}.exr", f)).string());
     for (const char* c : {"denoised.R", "surface_denoised.G", "volume_denoised.R", "volume_denoised.B",
                           "volume_history.Y", "volume_denoised_variance.Y"}) {
-      const auto &u = a.channel(c), &v = b.channel(c);
-      double worst = 0, scale = 1e-3;
-      for (size_t i = 0; i < u.size(); ++i) {
-        worst = std::max(worst, double(std::abs(u[i] - v[i])));
-        scale = std::max(scale, double(std::abs(u[i])));
-      }
-      EXPECT_LE(worst, 1e-3 * scale) << "frame " << f << " " << c;
+      EXPECT_LE(relative_difference(a, b, c), 1e-3) << "frame " << f << " " << c;
     }
   }
   auto st = nlohmann::json::parse(std::ifstream(dir / "d/stats.json"));
