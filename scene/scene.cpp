@@ -65,6 +65,13 @@ void validate(Camera& c, const Where& w) {
   }
 }
 
+// bounds_min < bounds_max in every component (NaN fails).
+void check_box(glm::vec3 lo, glm::vec3 hi, const Where& w) {
+  if (!glm::all(glm::lessThan(lo, hi)))
+    w.fail("bounds_max", fmt::format("must be greater than bounds_min in every component, got {} and {}",
+                                     vec_text(lo), vec_text(hi)));
+}
+
 void validate(Transform& t, const Where& w) {
   if (t.scale.x == 0.f || t.scale.y == 0.f || t.scale.z == 0.f) {
     w.fail("scale",
@@ -103,9 +110,7 @@ void validate(Medium& m, const Where& w) {
     }
   }
   if (m.grid.empty()) w.fail("grid", "must name a float grid, e.g. \"density\"");
-  if (!glm::all(glm::lessThan(m.bounds_min, m.bounds_max)))
-    w.fail("bounds_max", fmt::format("must be greater than bounds_min in every component, got {} and {}",
-                                     vec_text(m.bounds_min), vec_text(m.bounds_max)));
+  check_box(m.bounds_min, m.bounds_max, w);
   size_t runs = 0;
   for (size_t i = 0; i < m.file.size(); ++i) runs += m.file[i] == '#' && (i == 0 || m.file[i - 1] != '#');
   if (runs > 1) {
@@ -116,13 +121,7 @@ void validate(Medium& m, const Where& w) {
 }
 
 void validate(Haze& h, const Where& w) {
-  if (!h.bounded) return;
-  for (int i = 0; i < 3; ++i) {
-    if (!(h.bounds_min[i] < h.bounds_max[i])) {
-      w.fail("bounds_max", fmt::format("must be greater than bounds_min in every component, got {} and {}",
-                                       vec_text(h.bounds_min), vec_text(h.bounds_max)));
-    }
-  }
+  if (h.bounded) check_box(h.bounds_min, h.bounds_max, w);
 }
 
 void validate(Sun& s, const Where& w) {
