@@ -31,6 +31,78 @@ uint32_t layer_of(uint32_t offset) {
 
 }  // namespace
 
+FrameCounters frame_counters(const std::vector<uint32_t>& words) {
+  auto at = [&](uint32_t c) { return uint64_t(words.at(2 * c)) | (uint64_t(words.at(2 * c + 1)) << 32); };
+  FrameCounters f;
+  f.non_finite = at(glsl::COUNT_NON_FINITE);
+  f.step_cap = at(glsl::COUNT_STEP_CAP);
+  f.majorant = at(glsl::COUNT_MAJORANT);
+  f.clamped_squares = at(glsl::COUNT_CLAMPED_SQUARES);
+  f.lookups = at(glsl::COUNT_LOOKUPS);
+  f.delta_real = at(glsl::COUNT_DELTA_REAL);
+  f.delta_null = at(glsl::COUNT_DELTA_NULL);
+  f.distance_samples = at(glsl::COUNT_DISTANCE);
+  f.guided = at(glsl::COUNT_GUIDED);
+  return f;
+}
+
+double FrameCounters::null_share() const {
+  const uint64_t all = delta_real + delta_null;
+  return all ? double(delta_null) / double(all) : 0.0;
+}
+
+FrameCounters& FrameCounters::operator+=(const FrameCounters& o) {
+  non_finite += o.non_finite;
+  step_cap += o.step_cap;
+  majorant += o.majorant;
+  clamped_squares += o.clamped_squares;
+  lookups += o.lookups;
+  delta_real += o.delta_real;
+  delta_null += o.delta_null;
+  distance_samples += o.distance_samples;
+  guided += o.guided;
+  return *this;
+}
+
+nlohmann::json FrameCounters::discarded_json() const {
+  return {{"non_finite", non_finite}, {"step_cap", step_cap}, {"majorant", majorant}};
+}
+
+nlohmann::json FrameCounters::tracking_json() const {
+  return {{"lookups", lookups},
+          {"delta_real", delta_real},
+          {"delta_null", delta_null},
+          {"null_share", null_share()},
+          {"distance_samples", distance_samples},
+          {"guided", guided}};
+}
+
+std::vector<std::string> counter_notes(const FrameCounters& c) {
+  std::vector<std::string> n;
+  if (c.non_finite > 0)
+    n.push_back(fmt::format(
+        "{} samples had a non-finite radiance and were dropped: their pixels average their other samples "
+        "(biased where such samples are not rare accidents; stats.json discarded.non_finite per frame)",
+        c.non_finite));
+  if (c.step_cap > 0)
+    n.push_back(fmt::format(
+        "{} samples had a tracking query stopped at the step cap ({} steps; its transmittance taken as 0, "
+        "its walk ended): the image is biased dark there; a finer render.majorant_resolution tightens the "
+        "majorant",
+        c.step_cap, volume::kMaxTrackingSteps));
+  if (c.majorant > 0)
+    n.push_back(fmt::format(
+        "{} samples met an extinction above the majorant (clamped as pbrt-v4 does): the image is biased "
+        "there; please report the scene",
+        c.majorant));
+  if (c.clamped_squares > 0)
+    n.push_back(fmt::format(
+        "{} samples had a squared radiance above {:g}, clamped there so that sums of squares stay "
+        "finite; variance and surface_demod_m2 are lower bounds in those pixels",
+        c.clamped_squares, double(glsl::SQUARE_MAX)));
+  return n;
+}
+
 double median(std::vector<double> v) {
   if (v.empty()) return 0;
   std::sort(v.begin(), v.end());
@@ -110,8 +182,9 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   std::vector<lights::Emitter> emitters;
   for (const auto& e : surfaces_.geometry().emitters) emitters.push_back({e.v0, e.v1, e.v2, e.radiance});
   lights_.update(s.lights, emitters);
-  // Guiding learns where light scatters towards the camera: it needs a medium and a light.
-  const bool guided = s.guiding.enabled && media_.any() && lights_.any();
+  // Guiding learns where light scatters towards the camera: it needs a medium and a light, and the default
+  // estimator's distance sampling on camera rays (volpath has none).
+  const bool guided = s.guiding.enabled && media_.any() && lights_.any() && s.render.estimator == "default";
   guide_.update(s.guiding, uint32_t(s.render.width), uint32_t(s.render.height), guided, fresh);
 
   // The scene block: the camera and settings here, each part's share from the part.
@@ -136,7 +209,7 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   if (!scene_buf_.valid()) scene_buf_ = gpu::Buffer(ctx_, "scene", "scene data", sizeof(g), "GpuScene");
   if (!counters_.valid())
     counters_ =
-        gpu::Buffer(ctx_, "frame counters", "per-frame temporaries", glsl::COUNTERS * 4, "u32 COUNT_*");
+        gpu::Buffer(ctx_, "frame counters", "per-frame temporaries", glsl::COUNTERS * 8, "u64 COUNT_*");
   scene_buf_.upload(&g, sizeof(g));
 
   // The frame's layers, remade only when the size changes.
@@ -152,15 +225,18 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   }
   accum_.fill_zero();
   samples_ = 0;
+  folded_.clear();
+  folded_samples_ = 0;
 
   // The kernels of exactly this scene's features.
   gpu::KernelDecl t("volume/trace.comp");
   t.buffer("scene", sizeof(g));
   accum_.declare(t);
-  t.buffer("counters", glsl::COUNTERS * 4);
+  t.buffer("counters", glsl::COUNTERS * 8);
   media_.declare(t);
   lights_.declare(t);
   if (s.render.max_depth > 1) t.define("HAZE_MULTI");
+  if (s.render.estimator == "volpath") t.define("HAZE_VOLPATH");
   surfaces_.declare(t);
   guide_.declare(t);
   trace_ = kernel(std::move(t.push(4)));
@@ -283,6 +359,7 @@ void Renderer::add_samples(int n, const std::function<void(int, int)>& progress)
     });
     record_times();
     ++samples_;
+    if (samples_ - folded_samples_ >= kFoldSamples) fold();
     if (progress) progress(i + 1, n);
   }
 }
@@ -300,6 +377,12 @@ Image Renderer::resolve() {
     float exposure_scale;
     uint32_t tonemap;
   } push{pixels, uint32_t(samples_), tp.exposure_scale, tp.tonemap};
+  // After a fold the resolve reads the double sums, rounded to float once; the device sums start afresh.
+  const bool folded = folded_samples_ > 0;
+  if (folded) {
+    fold();
+    accum_.upload(std::vector<float>(folded_.begin(), folded_.end()));
+  }
   ctx_.submit_and_wait([&](VkCommandBuffer cmd) {
     timer_->reset(cmd);
     timer_->begin(cmd, "resolve");
@@ -342,6 +425,7 @@ Image Renderer::resolve() {
     timer_->end(cmd);
   });
   record_times();
+  if (folded) accum_.fill_zero();
   has_frame_ = true;
   Image img;
   img.width = r.width;
@@ -353,14 +437,23 @@ Image Renderer::resolve() {
   if (svgf_surface_) img.surface_denoised = svgf_surface_->download();
   if (svgf_volume_) img.volume_denoised = svgf_volume_->download();
   if (volume_motion_) img.volume_motion = volume_motion_->download();
-  const std::vector<uint32_t> counts = counters_.download_vector<uint32_t>();
-  img.non_finite = counts[glsl::COUNT_NON_FINITE];
-  img.clamped_squares = counts[glsl::COUNT_CLAMPED_SQUARES];
+  img.counters = frame_counters(counters_.download_vector<uint32_t>());
   return img;
 }
 
-std::vector<float> Renderer::accum() const {
-  return accum_.download();
+std::vector<double> Renderer::accum() const {
+  const std::vector<float> device = accum_.download();
+  std::vector<double> sums(device.begin(), device.end());
+  for (size_t i = 0; i < folded_.size(); ++i) sums[i] += folded_[i];
+  return sums;
+}
+
+void Renderer::fold() {
+  const std::vector<float> device = accum_.download();
+  folded_.resize(device.size(), 0.0);
+  for (size_t i = 0; i < device.size(); ++i) folded_[i] += device[i];
+  folded_samples_ = samples_;
+  accum_.fill_zero();
 }
 
 std::vector<std::string> Renderer::notes() const {

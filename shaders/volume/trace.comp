@@ -2,6 +2,9 @@
 // One camera sample per pixel per dispatch: the surface term T(0,t_s) L_bg and the volume term
 // (N distance samples on [0, t_s] from the mixture q(t), NEE with ratio-tracked shadow rays, and a
 // delta-tracked random walk for multiple scattering). Results are added to per-pixel sums and squares.
+// With HAZE_VOLPATH (render.estimator "volpath") the same kernel is pbrt-v4's VolPathIntegrator for grey
+// media instead, the baseline of haze bench's efficiency figures: the camera ray is the first delta-tracked
+// walk ray, real collisions absorb or scatter, NEE at every vertex, plain ratio tracking with pbrt's roulette.
 //
 // The estimator runs as a small state machine whose loop issues one tracking query per iteration, so the
 // tracker (and its single density-lookup call site) is inlined once.
@@ -30,8 +33,15 @@ PIXEL_LAYER(acc_demod2);
 PIXEL_LAYER(acc_emit);
 PIXEL_LAYER(acc_vp);
 layout(std430, binding = BINDING_counters) buffer Counters {
-  uint counters[];  // COUNT_*
+  uint counters[];  // COUNT_*, 64-bit each: low, high
 };
+
+// Adds v to 64-bit counter c (carry into the high word when the low one wraps).
+void counter_add(uint c, uint v) {
+  if (v == 0u) return;
+  uint old = atomicAdd(counters[2u * c], v);
+  if (old + v < old) atomicAdd(counters[2u * c + 1u], 1u);
+}
 
 #include "lights/lights.glsl"
 #include "volume/medium.glsl"
@@ -55,6 +65,15 @@ const int ST_SURFACE = 0;  // ratio tracking T(0, t_s) for the surface term
 const int ST_CAMERA = 1;   // ratio tracking T(0, t_j) to a sampled distance, with the medium at t_j
 const int ST_SHADOW = 2;   // ratio tracking towards a light
 const int ST_WALK = 3;     // delta tracking to the next scattering vertex
+
+// Russian roulette of the walk on the path throughput relative to its value at the first vertex (so that
+// it does not depend on the camera sample's 1/q or N): below PATH_RR it survives with probability
+// (relative throughput) / PATH_RR.
+const float PATH_RR = 0.25f;
+#if HAZE_VOLPATH
+// pbrt-v4's roulette of ratio-tracked transmittance (VolPathIntegrator::SampleLd).
+const float RATIO_RR = 0.05f, RATIO_RR_SURVIVE = 0.25f;
+#endif
 
 #if HAZE_GUIDING
 // A random state slot at a grid vertex next to grid position g (stochastic bilinear choice of the vertex).
@@ -101,12 +120,21 @@ void main() {
 #endif
   uint N = scene.size.z;
   uint max_depth = scene.size.w;
+#if HAZE_VOLPATH
+  float rr_T = RATIO_RR, rr_T_survive = RATIO_RR_SURVIVE;
+#else
+  float rr_T = scene.settings.y, rr_T_survive = 0.5f;
+#endif
 
   vec3 L_surf = vec3(0.0f), L_vol = vec3(0.0f);
   vec3 albedo0 = vec3(1.0f);  // albedo of the camera's surface hit, for demodulation
   vec3 E_surf = vec3(0.0f);   // the camera hit's emission (in L_surf, kept out of the demodulated term)
   float T_surf = 1.0f;
+  // What this sample's tracking did and what it cut, added to the frame's counters once at the end.
+  uint n_lookups = 0u, n_real = 0u, n_null = 0u, n_distance = 0u, n_guided = 0u;
+  bool step_capped = false, violated = false;
 
+#if !HAZE_VOLPATH
   // Distance sampling on the camera ray: q(t) = (1 - P) [p_base q_base(t) + p_ea q_ea(t)] + P q_guide(t).
   float tau_total = maj_walk(cam_o, cam_d, 0.0f, t_s, T_INF).tau;
   float p_base = tau_total > 0.0f ? 1.0f : 0.0f;
@@ -127,7 +155,8 @@ void main() {
   vec4 guide_chosen = vec4(0.0f);  // the state the current sample learns into
   float guide_mean_w = 0.0f;       // mean candidate weight, the bar for writing a state back
 #endif
-  float t_j = 0.0f;  // distance of the current volume sample
+#endif
+  float t_j = 0.0f;  // distance of the current volume sample (volpath: of the camera ray's first vertex)
   vec3 L_vol_start = vec3(0.0f);
   // Virtual point sums (ACC_VP_*).
   float vp_wt = 0.0f, vp_w = 0.0f, vp_g = 0.0f, vp_gn = 0.0f;
@@ -144,6 +173,7 @@ void main() {
   vec3 x = cam_o;           // current vertex
   vec3 d = cam_d;           // direction the path travelled to reach x
   vec3 beta = vec3(0.0f);
+  float beta_start = 0.0f;    // max component of beta at the path's first vertex (the roulette's yardstick)
   vec3 pending = vec3(0.0f);  // NEE contribution waiting for its shadow-ray transmittance
   float q_j = 1.0f;           // q(t_j) of the current distance sample
   float g = 0.0f;             // phase anisotropy at a volume vertex
@@ -154,9 +184,26 @@ void main() {
 #if HAZE_SURFACES
   BvhHit walk_h;
 #endif
+#if HAZE_VOLPATH
+  // The camera ray is the first walk ray, with throughput 1.
+  state = ST_WALK;
+  q_mode = TRACK_DELTA;
+  beta = vec3(1.0f);
+  beta_start = 1.0f;
+  T_surf = 0.0f;  // 1 when the camera ray reaches t_s: delta tracking's estimate of T(0, t_s)
+  walk_hit = cam_hit;
+#if HAZE_SURFACES
+  walk_h = cam_h;
+#endif
+#endif
 
   for (;;) {
-    TrackResult r = track(q_o, q_d, q_t0, q_t1, q_mode, q_eval, rng);
+    TrackResult r = track(q_o, q_d, q_t0, q_t1, q_mode, q_eval, rr_T, rr_T_survive, rng);
+    n_lookups += r.lookups;
+    n_null += r.nulls;
+    if (r.hit) n_real += 1u;
+    step_capped = step_capped || r.capped;
+    violated = violated || r.violated;
     bool next_sample = false;  // start the next volume sample
     bool do_nee = false;       // a scattering vertex is ready at x
 
@@ -174,6 +221,7 @@ void main() {
         on_surface = true;
         to_surface = true;
         beta = vec3(r.T);
+        beta_start = r.T;
         depth = 1u;
         do_nee = max_depth > 0u && r.T > 0.0f;
         next_sample = !do_nee;
@@ -188,6 +236,7 @@ void main() {
       L_vol += w * r.ms.emit;
       if (max_depth > 0u && w > 0.0f) {
         beta = vec3(w) * r.ms.albedo;
+        beta_start = w;
         g = r.ms.g;
         on_surface = false;
         depth = 1u;
@@ -201,15 +250,28 @@ void main() {
       else
         L_vol += pending * r.T;
 #if HAZE_MULTI || HAZE_SURFACES
-      if (depth < max_depth) {
+      bool walk_on = depth < max_depth;
+      if (walk_on) {
         if (on_surface) {
           // Lambertian: cosine sampling makes the weight the albedo.
           d = sample_cosine_hemisphere(n, vec2(rng_next(rng), rng_next(rng)));
           beta *= alb;
           x += n * surface_epsilon(x);
+#if HAZE_VOLPATH
+          // pbrt-v4's roulette, at surface vertices after the first: survive with the throughput.
+          float m = max(beta.x, max(beta.y, beta.z));
+          if (depth > 1u && m < 1.0f) {
+            if (rng_next(rng) >= m)
+              walk_on = false;
+            else
+              beta /= m;
+          }
+#endif
         } else {
           d = hg_sample(d, g, vec2(rng_next(rng), rng_next(rng)));
         }
+      }
+      if (walk_on) {
         q_o = x;
         q_d = d;
         q_t0 = 0.0f;
@@ -231,17 +293,36 @@ void main() {
       next_sample = true;
     } else {  // ST_WALK
       bool vertex = false;
-      if (r.hit) {
+#if HAZE_VOLPATH
+      bool camera_ray = depth == 0u;
+      if (camera_ray && !r.capped) {
+        // The camera ray's first vertex decides the term the path belongs to.
+        to_surface = !r.hit;
+        if (!r.hit) T_surf = 1.0f;
+        t_j = r.t;
+        if (!r.hit && !walk_hit) L_surf = background(cam_d);
+      }
+#endif
+      if (r.capped) {
+        // A walk the step cap stopped found no vertex: the path ends here (counted, biased).
+      } else if (r.hit) {
         x = x + d * r.t;
         vec3 emitted = beta * r.ms.emit;
         if (to_surface)
           L_surf += emitted;
         else
           L_vol += emitted;
+#if HAZE_VOLPATH
+        // Absorption ends the path with probability 1 - mean albedo; scattering keeps the colour's ratio.
+        float a = (r.ms.albedo.x + r.ms.albedo.y + r.ms.albedo.z) * (1.0f / 3.0f);
+        vertex = rng_next(rng) < a;
+        if (vertex) beta *= r.ms.albedo / a;
+#else
         beta *= r.ms.albedo;
+        vertex = true;
+#endif
         g = r.ms.g;
         on_surface = false;
-        vertex = true;
       }
 #if HAZE_SURFACES
       else if (walk_hit) {
@@ -251,21 +332,34 @@ void main() {
         alb = surface_albedo(walk_h);
         on_surface = true;
         vertex = true;
+#if HAZE_VOLPATH
+        if (camera_ray) {
+          L_surf = instances[walk_h.instance].emission.rgb;
+          E_surf = L_surf;
+          albedo0 = alb;
+        }
+#endif
       }
 #endif
       if (vertex) {
         depth += 1u;
-        float m = max(beta.x, max(beta.y, beta.z));
-        if (m < 0.25f) {
-          if (rng_next(rng) * 0.25f >= m) {
+#if HAZE_VOLPATH
+        // Vertices beyond max_depth do no NEE (their emission is counted above, as in the default).
+        do_nee = depth <= max_depth;
+        next_sample = !do_nee;
+#else
+        float m = max(beta.x, max(beta.y, beta.z)) / beta_start;
+        if (m < PATH_RR) {
+          if (rng_next(rng) * PATH_RR >= m) {
             next_sample = true;
           } else {
-            beta *= 0.25f / m;
+            beta *= PATH_RR / m;
             do_nee = true;
           }
         } else {
           do_nee = true;
         }
+#endif
       } else {
         next_sample = true;
       }
@@ -302,6 +396,16 @@ void main() {
       continue;
     }
 
+#if HAZE_VOLPATH
+    if (next_sample) {
+      // One path per camera sample; its first medium vertex is the virtual point.
+      float Y = luminance(L_vol);
+      if (!(Y >= 0.0f && Y < 1e30f)) Y = 0.0f;
+      vp_wt += Y * t_j;
+      vp_w += Y;
+      break;
+    }
+#else
     if (next_sample) {
       to_surface = false;
       if (j > 0u) {
@@ -322,6 +426,7 @@ void main() {
       }
       if (j >= N || (p_base + p_ea) == 0.0f) break;
       j += 1u;
+      n_distance += 1u;
       L_vol_start = L_vol;
       // Draw t_j from the mixture and evaluate q(t_j).
       float t;
@@ -351,6 +456,7 @@ void main() {
         if (u_pick < P) {
           t = truncated_gaussian_sample(gm.g[chosen], u_t);
           u_pick = 2.0f;  // neither base nor equi-angular below
+          n_guided += 1u;
         } else {
           u_pick = (u_pick - P) / (1.0f - P);
         }
@@ -396,20 +502,27 @@ void main() {
       q_eval = true;
       state = ST_CAMERA;
     }
+#endif
   }
 
   vec3 L = L_surf + L_vol;
   // Emission is not shaded by the albedo: dividing it by a dark albedo would make it a firefly for the
   // denoiser, which adds acc_emit back after remodulation instead.
   vec3 demod = (L_surf - E_surf) / max(albedo0, vec3(DEMOD_MIN_ALBEDO));
-  // Non-finite values never enter the sums (extreme inputs are clamped, not propagated).
-  if (any(isnan(L)) || any(isinf(L)) || any(isnan(demod)) || any(isinf(demod))) {
-    L = vec3(0.0f);
-    L_vol = vec3(0.0f);
-    L_surf = vec3(0.0f);
-    demod = vec3(0.0f);
-    E_surf = vec3(0.0f);
-    atomicAdd(counters[COUNT_NON_FINITE], 1u);
+  counter_add(COUNT_LOOKUPS, n_lookups);
+  counter_add(COUNT_DELTA_REAL, n_real);
+  counter_add(COUNT_DELTA_NULL, n_null);
+  counter_add(COUNT_DISTANCE, n_distance);
+  counter_add(COUNT_GUIDED, n_guided);
+  if (step_capped) counter_add(COUNT_STEP_CAP, 1u);
+  if (violated) counter_add(COUNT_MAJORANT, 1u);
+  // A non-finite sample never enters the sums: it is dropped, and the pixel's means leave it out of their
+  // sample count (ACC_DROPPED); the frame's counter makes it visible.
+  if (any(isnan(L)) || any(isinf(L)) || any(isnan(demod)) || any(isinf(demod)) || isnan(T_surf) ||
+      isinf(T_surf)) {
+    counter_add(COUNT_NON_FINITE, 1u);
+    acc_surf[pixel].w += 1.0f;
+    return;
   }
   bool clamped = false;
   acc_l[pixel] += vec4(L, T_surf);
@@ -421,6 +534,6 @@ void main() {
   acc_demod[pixel] += vec4(demod, 0.0f);
   acc_demod2[pixel] += vec4(square_capped(demod, clamped), 0.0f);
   acc_emit[pixel] += vec4(E_surf, 0.0f);
-  if (clamped) atomicAdd(counters[COUNT_CLAMPED_SQUARES], 1u);
+  if (clamped) counter_add(COUNT_CLAMPED_SQUARES, 1u);
   acc_vp[pixel] += vec4(vp_wt, vp_w, vp_g, vp_gn);
 }
