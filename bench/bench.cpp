@@ -15,6 +15,7 @@
 #include <sstream>
 
 #include "bench/bench_util.hpp"
+#include "bench/efficiency_bench.hpp"
 #include "bench/guiding_bench.hpp"
 #include "bench/volume_repr_bench.hpp"
 #include "denoise/svgf.hpp"
@@ -383,8 +384,9 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
   if (j.contains("guiding")) {
     for (const auto& e : j["guiding"]["equal_time"]) {
       const auto& r = e["relmse_ratio_unguided_over_guided"];
-      add(fmt::format("{} unguided/guided", e["scene"].get<std::string>()), r["mean"],
-          fmt::format("volume relMSE at equal GPU time, mean over seeds ({:.2f}..{:.2f}); >1: guiding wins",
+      add(fmt::format("{} unguided/guided", e["scene"].get<std::string>()), e["relmse_ratio_of_means"],
+          fmt::format("volume relMSE at equal GPU time, ratio of means over seeds (per seed {:.2f}..{:.2f}); "
+                      ">1: guiding wins",
                       r["min"].get<double>(), r["max"].get<double>()));
       rows.back()["min"] = r["min"];
       rows.back()["max"] = r["max"];
@@ -399,6 +401,18 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
         c["volume"]["bytes"].get<double>() / c["surface"]["bytes"].get<double>(),
         "ledger bytes of the two SVGF instances");
   }
+  if (j.contains("efficiency"))
+    for (const auto& c : j["efficiency"]["cases"]) {
+      const std::string name = c["case"];
+      const auto sides = c["sides"];
+      add(name == "sheets" ? "guiding.sheets" : "efficiency." + name, c["efficiency_ratio"],
+          fmt::format("1/(relMSE x time), {} / {}, ratio of means over seeds ({:.2f}..{:.2f}): {}",
+                      sides[0].get<std::string>(), sides[1].get<std::string>(),
+                      c["per_seed_ratio_min"].get<double>(), c["per_seed_ratio_max"].get<double>(),
+                      c["what"].get<std::string>()));
+      rows.back()["min"] = c["per_seed_ratio_min"];
+      rows.back()["max"] = c["per_seed_ratio_max"];
+    }
   if (j.contains("volume_repr"))
     for (const auto& g : j["volume_repr"]["grids"]) {
       const std::string id = g["name"];
@@ -428,8 +442,8 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
 }  // namespace
 
 const std::vector<std::string>& part_names() {
-  static const std::vector<std::string> names = {"first_frame", "passes",  "bvh",
-                                                 "svgf",        "guiding", "volume_repr"};
+  static const std::vector<std::string> names = {"first_frame", "passes",      "bvh",       "svgf",
+                                                 "guiding",     "volume_repr", "efficiency"};
   return names;
 }
 
@@ -459,6 +473,15 @@ int run(const Options& o, const gpu::ContextOptions& co) {
   if (o.denoise_sizes.empty()) throw std::runtime_error("--denoise-sizes: expected WxH[,WxH...]");
   auto [gw, gh] = parse_size(o.guiding_size, "--guiding-size");
   if (o.spp < 1) throw std::runtime_error(fmt::format("--spp {}: must be >= 1", o.spp));
+  std::vector<std::string> efficiency_cases;
+  if (!o.efficiency_cases.empty())
+    for (const std::string& c : split(o.efficiency_cases, ',')) {
+      const auto& names = efficiency_case_names();
+      if (std::find(names.begin(), names.end(), c) == names.end())
+        throw std::runtime_error(
+            fmt::format("--efficiency-cases: unknown case '{}'; valid cases: {}", c, fmt::join(names, ", ")));
+      efficiency_cases.push_back(c);
+    }
 
   gpu::Context ctx(co);
   scene::Scene s = scene::from_json(bench_scene(w, h, o.spp), "bench scene", "");
@@ -489,6 +512,13 @@ int run(const Options& o, const gpu::ContextOptions& co) {
     VolumeReprOptions vo;
     vo.invocations = uint32_t(w) * uint32_t(h);
     j["volume_repr"] = bench_volume_repr(ctx, vo);
+  }
+  if (wants("efficiency") && o.efficiency_seeds > 0) {
+    EfficiencyOptions eo;
+    eo.seeds = o.efficiency_seeds;
+    eo.scale = o.efficiency_scale;
+    eo.cases = efficiency_cases;
+    j["efficiency"] = bench_efficiency(ctx, eo);
   }
   const std::vector<std::string> svgf_sizes = split(o.denoise_sizes, ',');
   const json rows = summarize(j, svgf_sizes);
@@ -563,6 +593,7 @@ int run(const Options& o, const gpu::ContextOptions& co) {
       }
     if (j.contains("guiding")) print_guiding(j["guiding"]);
     if (j.contains("volume_repr")) print_volume_repr(j["volume_repr"]);
+    if (j.contains("efficiency")) print_efficiency(j["efficiency"]);
   }
   if (messages > 0) {
     fmt::print(stderr, "haze: {} Vulkan validation messages\n", messages);
