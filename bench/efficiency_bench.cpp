@@ -39,7 +39,7 @@ const json kVolpath = {{"render", {{"estimator", "volpath"}}}};
 // to depth 100 (the comparison with pbrt-v4).
 Case dense_cloud(double s) {
   const int w = int(std::lround(128 * s)), h = w;
-  json j = base(w, h, 100);
+  json j = base(w, h, getenv("HAZE_DEPTH") ? atoi(getenv("HAZE_DEPTH")) : 100);  // DEBUG
   j["camera"] = {{"position", {0, 0.4, 3.6}}, {"target", {0, 0, 0}}, {"fov_y", 38}};
   j["media"] = {{{"procedural",
                   {{"kind", "cloud"},
@@ -182,9 +182,7 @@ struct Render {
   render::FrameCounters counters;
 };
 
-Render render_case(gpu::Context& ctx, const scene::Scene& s, int spp) {
-  render::Renderer r(ctx, s);
-  r.add_samples(spp);
+Render resolved(render::Renderer& r, int spp) {
   const render::Image img = r.resolve();
   Render out;
   const size_t pixels = size_t(img.width) * img.height;
@@ -198,6 +196,24 @@ Render render_case(gpu::Context& ctx, const scene::Scene& s, int spp) {
   return out;
 }
 
+Render render_case(gpu::Context& ctx, const scene::Scene& s, int spp) {
+  render::Renderer r(ctx, s);
+  r.add_samples(spp);
+  return resolved(r, spp);
+}
+
+// Both sides of one seed, their samples interleaved one by one, so that the machine's drift over the
+// render touches both alike.
+std::pair<Render, Render> render_pair(gpu::Context& ctx, const scene::Scene& a, int spp_a,
+                                      const scene::Scene& b, int spp_b) {
+  render::Renderer ra(ctx, a), rb(ctx, b);
+  for (int i = 0; i < std::max(spp_a, spp_b); ++i) {
+    if (i < spp_a) ra.add_samples(1);
+    if (i < spp_b) rb.add_samples(1);
+  }
+  return {resolved(ra, spp_a), resolved(rb, spp_b)};
+}
+
 // Mean GPU time of one trace dispatch over `n` samples, after a warm-up sample (lavapipe compiles a pipeline
 // at its first dispatch).
 double ms_per_sample(gpu::Context& ctx, const scene::Scene& s, int n) {
@@ -209,8 +225,16 @@ double ms_per_sample(gpu::Context& ctx, const scene::Scene& s, int n) {
   return std::accumulate(ms.begin() + long(warm), ms.end(), 0.0) / double(ms.size() - warm);
 }
 
-json side_json(const std::vector<double>& relmse, const std::vector<double>& ms, int spp) {
-  return {{"spp", spp}, {"relmse", relmse}, {"trace_ms", ms}};
+json side_json(const std::vector<double>& relmse, const std::vector<double>& ms, int spp,
+               const render::FrameCounters& c, double pixels) {
+  const double samples = pixels * spp * double(relmse.size());
+  return {{"spp", spp},
+          {"relmse", relmse},
+          {"trace_ms", ms},
+          {"lookups_per_sample", double(c.lookups) / samples},
+          {"real_collisions_per_sample", double(c.delta_real) / samples},
+          {"null_share", c.null_share()},
+          {"discarded", c.discarded_json()}};
 }
 
 double mean(const std::vector<double>& v) {
@@ -227,34 +251,36 @@ json run_case(gpu::Context& ctx, const Case& c, const EfficiencyOptions& o) {
   const int ref_spp = spp_a * o.reference_factor;
   const Render ref = render_case(ctx, make(c.scene, kDefault, 4000000007u), ref_spp);
   std::vector<double> err_a, err_b, t_a, t_b, ratios;
-  render::FrameCounters counters = ref.counters;
+  render::FrameCounters counters = ref.counters, counters_a, counters_b;
   for (int seed = 1; seed <= o.seeds; ++seed) {
-    const Render a = render_case(ctx, make(c.scene, c.a, uint32_t(seed)), spp_a);
-    const Render b = render_case(ctx, make(c.scene, c.b, uint32_t(seed)), spp_b);
+    const auto [a, b] = render_pair(ctx, make(c.scene, c.a, uint32_t(seed)), spp_a,
+                                    make(c.scene, c.b, uint32_t(seed)), spp_b);
     err_a.push_back(relmse_corrected(a.L, ref.L, ref.var_of_mean));
     err_b.push_back(relmse_corrected(b.L, ref.L, ref.var_of_mean));
     t_a.push_back(a.trace_ms);
     t_b.push_back(b.trace_ms);
     ratios.push_back((err_b.back() * t_b.back()) / (err_a.back() * t_a.back()));
-    counters += a.counters;
-    counters += b.counters;
+    counters_a += a.counters;
+    counters_b += b.counters;
   }
   // Efficiency 1 / (relMSE x time): a over b is b's mean relMSE x mean time over a's.
   const double ratio = (mean(err_b) * mean(t_b)) / (mean(err_a) * mean(t_a));
+  counters += counters_a;
+  counters += counters_b;
+  const double pixels = double(c.width) * c.height;
   return {{"case", c.name},
           {"what", c.what},
           {"size", {c.width, c.height}},
           {"sides", {c.a_name, c.b_name}},
-          {c.a_name, side_json(err_a, t_a, spp_a)},
-          {c.b_name, side_json(err_b, t_b, spp_b)},
+          {c.a_name, side_json(err_a, t_a, spp_a, counters_a, pixels)},
+          {c.b_name, side_json(err_b, t_b, spp_b, counters_b, pixels)},
           {"time_per_sample_b_over_a", ms_b / ms_a},
           {"reference_spp", ref_spp},
           {"reference_trace_ms", ref.trace_ms},
           {"efficiency_ratio", ratio},
           {"per_seed_ratio_min", *std::min_element(ratios.begin(), ratios.end())},
           {"per_seed_ratio_max", *std::max_element(ratios.begin(), ratios.end())},
-          {"discarded", counters.discarded_json()},
-          {"null_share", counters.null_share()}};
+          {"discarded", counters.discarded_json()}};
 }
 
 }  // namespace

@@ -81,9 +81,8 @@ float grid_trilinear(uint grid_offset, vec3 p) {
 }
 #endif
 
-// sigma_t at x, and one component chosen with probability sigma_t,i / sigma_t using the single uniform u
-// (streaming selection: u is rescaled after each decision).
-MediumSample sample_medium(vec3 x, float u) {
+// The homogeneous haze at x (nothing outside its box): the whole medium where no grid reaches.
+MediumSample haze_at(vec3 x) {
   MediumSample ms;
   ms.sigma_t = 0.0f;
   ms.sigma_control = 0.0f;
@@ -98,6 +97,13 @@ MediumSample sample_medium(vec3 x, float u) {
     ms.g = scene.haze_albedo_g.w;
   }
 #endif
+  return ms;
+}
+
+// sigma_t at x, and one component chosen with probability sigma_t,i / sigma_t using the single uniform u
+// (streaming selection: u is rescaled after each decision).
+MediumSample sample_medium(vec3 x, float u) {
+  MediumSample ms = haze_at(x);
 #if HAZE_HETERO
   int chosen = -1;
   vec3 chosen_p = vec3(0.0f);
@@ -237,14 +243,16 @@ bool maj_next(INOUT(MajorantIter) it, OUT(float) sigma_het, OUT(float) sigma_haz
 
 // Optical depth of the full majorant from t0 up to where it reaches tau_stop (or t1).
 struct MajWalk {
-  float tau;    // accumulated majorant optical depth
-  float t;      // where the walk stopped
-  float sigma;  // majorant at t
+  float tau;      // accumulated majorant optical depth
+  float tau_het;  // its heterogeneous part (the majorant grid's)
+  float t;        // where the walk stopped
+  float sigma;    // majorant at t
 };
 
 MajWalk maj_walk(vec3 o, vec3 d, float t0, float t1, float tau_stop) {
   MajWalk w;
   w.tau = 0.0f;
+  w.tau_het = 0.0f;
   w.t = t0;
   w.sigma = 0.0f;
   MajorantIter it = maj_init(o, d, t0, t1);
@@ -256,10 +264,12 @@ MajWalk maj_walk(vec3 o, vec3 d, float t0, float t1, float tau_stop) {
     w.sigma = s;
     if (w.tau + dtau >= tau_stop && s > 0.0f) {
       w.t = ta + (tau_stop - w.tau) / s;
+      w.tau_het += s_het * (w.t - ta);
       w.tau = tau_stop;
       return w;
     }
     w.tau += dtau;
+    w.tau_het += s_het * (tb - ta);
     w.t = tb;
   }
   return w;
