@@ -39,7 +39,7 @@ const json kVolpath = {{"render", {{"estimator", "volpath"}}}};
 // to depth 100 (the comparison with pbrt-v4).
 Case dense_cloud(double s) {
   const int w = int(std::lround(128 * s)), h = w;
-  json j = base(w, h, getenv("HAZE_DEPTH") ? atoi(getenv("HAZE_DEPTH")) : 100);  // DEBUG
+  json j = base(w, h, 100);
   j["camera"] = {{"position", {0, 0.4, 3.6}}, {"target", {0, 0, 0}}, {"fov_y", 38}};
   j["media"] = {{{"procedural",
                   {{"kind", "cloud"},

@@ -100,9 +100,6 @@ BiasTest run_test(const Estimate& e, const std::function<double(size_t)>& ref,
     if (v > 0 && std::sqrt(v) <= kMaxRelativeError * std::abs(e.mean[i])) {
       t.chi2[c] += d * d / v;
       ++t.dof[c];
-      if (getenv("HAZE_DEBUG_Z") && d * d / v > 16)
-        std::cout << "pixel " << i / C << " channel " << c << " mean " << e.mean[i] << " ref " << r << " se "
-                  << std::sqrt(v) << " z " << d / std::sqrt(v) << "\n";
     } else if (v == 0 && std::abs(d) <= exact_tolerance * std::max(1.0, std::abs(r))) {
       // Matches without variance (deterministic, or a 0/1 estimator that never missed).
     } else if (v > 0 || e.mean[i] == 0) {
@@ -110,8 +107,6 @@ BiasTest run_test(const Estimate& e, const std::function<double(size_t)>& ref,
       ++t.undersampled;
     } else {
       ++t.exact_mismatches;
-      if (getenv("HAZE_DEBUG_Z"))
-        std::cout << "exact pixel " << i / C << " mean " << e.mean[i] << " ref " << r << "\n";
     }
     ++t.values;
   }

@@ -71,7 +71,7 @@ const int ST_START = 4;    // nothing tracked yet: the first volume sample start
 // it does not depend on the camera sample's 1/q or N): below PATH_RR it survives with probability
 // (relative throughput) / PATH_RR.
 const float PATH_RR = 0.25f;
-const float TAU_DELTA = 1.0f;
+const float TAU_DELTA = 0.1f;
 #if HAZE_VOLPATH
 // pbrt-v4's roulette of ratio-tracked transmittance (VolPathIntegrator::SampleLd).
 const float RATIO_RR = 0.05f, RATIO_RR_SURVIVE = 0.25f;
