@@ -26,8 +26,8 @@ struct Options {
   std::string only;                                 // comma-separated part names; empty: all
 };
 
-// The parts `only` names (all when empty); throws a one-line error naming an unknown part and listing the
-// valid ones.
+// The parts `only` names (when empty: all but efficiency, which runs only when named); throws a one-line
+// error naming an unknown part and listing the valid ones.
 std::vector<std::string> parse_only(const std::string& only);
 
 int run(const Options& o, const gpu::ContextOptions& co);

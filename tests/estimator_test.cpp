@@ -559,6 +559,57 @@ TEST(Estimator, VolpathAndDefaultAgreeOnAFullScene) {
   expect_unbiased(two_sample_test(vs, ds), "surface term, volpath against default");
 }
 
+// References in double: the device sums at most Renderer::kFoldSamples samples in float before they are
+// folded into double sums on the host. The scheme at 2^24 samples of one value, simulated on the CPU with
+// the same batch: a float running sum stops growing once a sample is below half its ulp (the mean comes out
+// near 0.5 of the truth here), the folded one keeps the mean and the variance to float rounding.
+TEST(Reference, FoldedSumsConvergeAt2To24Samples) {
+  const int64_t n = int64_t(1) << 24;
+  const float x = 0.3f, x2 = x * x;
+  float plain = 0, plain2 = 0, batch = 0, batch2 = 0;
+  double folded = 0, folded2 = 0;
+  for (int64_t i = 1; i <= n; ++i) {
+    plain += x;
+    plain2 += x2;
+    batch += x;
+    batch2 += x2;
+    if (i % render::Renderer::kFoldSamples == 0) {
+      folded += batch;
+      folded2 += batch2;
+      batch = batch2 = 0;
+    }
+  }
+  folded += batch;
+  folded2 += batch2;
+  const double mean = folded / double(n), var = folded2 / double(n) - mean * mean;
+  std::cout << "mean of 2^24 samples of 0.3: float sum " << plain / double(n) << ", folded " << mean << "\n";
+  EXPECT_LT(plain / double(n), 0.9 * x);  // the failure folding prevents
+  EXPECT_NEAR(mean, x, 1e-6 * x);
+  EXPECT_NEAR(var, 0.0, 1e-6 * x2);  // a constant: no variance, to float rounding of the squares
+}
+
+// The renderer folds: past kFoldSamples the sums are double on the host, the resolve reads them, and an
+// estimate made of 2.5 folds has the mean and variance of the estimator. volpath's transmittance through a
+// homogeneous slab is a 0/1 sample with mean T and variance T (1 - T), both known.
+TEST(Reference, RendererFoldsIntoDoubleSums) {
+  json j = with_estimator(slab_camera(1), "volpath");
+  j["haze"] = haze_slab(0.7, 0.5, 0);
+  scene::Scene s = make_scene(j);
+  render::Renderer r(context(), s);
+  const int n = 2 * render::Renderer::kFoldSamples + render::Renderer::kFoldSamples / 2;
+  render::Image img = render_checked(r, n, "folded render");
+  EXPECT_EQ(r.folded_samples(), 2 * render::Renderer::kFoldSamples);
+  const double T = std::exp(-0.7 / camera_directions(s)[0].y);
+  Estimate e = estimate(r, ACC_T, ACC_T2);
+  const double se = std::sqrt(T * (1 - T) / n);
+  std::cout << "folded mean " << e.mean[0] << ", T " << T << ", z " << (e.mean[0] - T) / se << "\n";
+  EXPECT_LT(std::abs(e.mean[0] - T), 3.89 * se);
+  // The sample variance of the 0/1 samples is mean (1 - mean) exactly (n / (n - 1) aside).
+  EXPECT_NEAR(e.var_of_mean[0] * n, e.mean[0] * (1 - e.mean[0]) * n / (n - 1), 1e-9);
+  // The resolve read the folded sums: its transmittance layer is their mean.
+  EXPECT_NEAR(img.data[glsl::OUT_T], e.mean[0], 1e-6);
+}
+
 // The statistic itself, on synthetic normal estimates with known means: it accepts unbiased ones and rejects
 // a bias of half a standard error per pixel over 144 pixels (pooled z 6 against a critical 4.3).
 TEST(BiasStatistic, AcceptsNoBiasAndRejectsAKnownOne) {

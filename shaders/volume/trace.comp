@@ -125,7 +125,7 @@ void main() {
 #if HAZE_VOLPATH
   float rr_T = RATIO_RR, rr_T_survive = RATIO_RR_SURVIVE;
 #else
-  float rr_T = scene.settings.y, rr_T_survive = 0.5f;
+  float rr_T = scene.settings.y, rr_T_survive = 0.25f;
 #endif
 
   vec3 L_surf = vec3(0.0f), L_vol = vec3(0.0f);
