@@ -425,6 +425,52 @@ TEST_P(EstimatorP, WhiteFurnaceWithOverlappingMedia) {
   expect_unbiased(bias_test(estimate(r, ACC_L, ACC_L2, 3), std::vector<double>(100, 1.0)), "white furnace");
 }
 
+// An emitting furnace: inside a medium much thicker than a mean free path in every direction, with albedo a
+// and emission L_e everywhere, radiative equilibrium makes the radiance L_e in every direction
+// (L = (1 - a) L_e + a L). Paths of up to 256 events with a = 0.9 leave 0.9^257 ~ 2e-12 out, the box's walls
+// (optical depth 20 away) e^-20. The walk's roulette works hard here (the throughput falls below a quarter
+// after 13 events).
+TEST_P(EstimatorP, EmittingFurnace) {
+  json j = {{"camera", {{"position", {0, 0, 0}}, {"target", {0.3, 0.2, 1}}, {"fov_y", 90}}},
+            {"media",
+             {{{"procedural",
+                {{"kind", "box"},
+                 {"voxel_size", 1.0},
+                 {"center", {0, 0, 0}},
+                 {"size", {40, 40, 40}},
+                 {"density", 1.0}}},
+               {"albedo", {0.9, 0.9, 0.9}},
+               {"g", 0.3},
+               {"emission", {{"mode", "scale"}, {"scale", 2.0}}}}}},
+            {"render", {{"width", 6}, {"height", 6}, {"max_depth", 256}}}};
+  scene::Scene s = make_scene(with_estimator(j, GetParam()));
+  render::Renderer r(context(), s);
+  render_checked(r, 256, "emitting furnace");
+  expect_unbiased(bias_test(estimate(r, ACC_L, ACC_L2, 3), std::vector<double>(36, 2.0)), "emitting furnace");
+}
+
+// A Lambertian furnace: inside a closed sphere whose surface has albedo a and emission E, with max_depth D,
+// every pixel sees E (1 + a + ... + a^D): E directly, and each event's NEE to the emitting surface brings
+// back a E (its irradiance is pi E everywhere inside). Surface bounces and both estimators' roulettes at
+// surfaces. A sphere, not a box: between two points of a sphere cos cos / r^2 is constant, while a box's
+// edges make NEE by area heavy-tailed (1 / r^2 near an edge), too heavy for a normal z per pixel.
+TEST_P(EstimatorP, LambertianFurnace) {
+  const double a = 0.5, E = 1.5;
+  const int D = 8;
+  json j = {{"camera", {{"position", {0.2, -0.3, 0.1}}, {"target", {1, 0.3, 0.6}}, {"fov_y", 90}}},
+            {"surfaces",
+             {{{"mesh", {{"kind", "sphere"}, {"radius", 1.5}, {"segments", 48}}},
+               {"albedo", {a, a, a}},
+               {"emission", {E, E, E}}}}},
+            {"render", {{"width", 6}, {"height", 6}, {"max_depth", D}}}};
+  scene::Scene s = make_scene(with_estimator(j, GetParam()));
+  render::Renderer r(context(), s);
+  render_checked(r, 256, "lambertian furnace");
+  const double ref = E * (1 - std::pow(a, D + 1)) / (1 - a);
+  expect_unbiased(bias_test(estimate(r, ACC_L, ACC_L2, 3), std::vector<double>(36, ref)),
+                  "lambertian furnace");
+}
+
 // GPU ratio-tracked transmittance through a procedural cloud against NanoVDB's CPU trilinear sampler,
 // integrated along the same rays.
 TEST_P(EstimatorP, GpuTransmittanceMatchesNanoVdbCpuSampler) {
@@ -492,9 +538,9 @@ TEST_P(EstimatorP, AbsorbingEmittingVdbSlab) {
 
 // Ratio tracking through a linearly varying medium: a ramp grid (trilinear interpolation is exact on it),
 // so the optical depth is the integral of a known piecewise-linear profile.
-TEST_P(EstimatorP, RatioTrackingThroughLinearRamp) {
-  const double scale = 2.0, rho_top = 1.5;
-  json j = with_estimator(slab_camera(), GetParam());
+void check_ramp(const std::string& estimator, double scale, int spp) {
+  const double rho_top = 1.5;
+  json j = with_estimator(slab_camera(), estimator);
   j["media"] = {{{"procedural",
                   {{"kind", "ramp"},
                    {"voxel_size", 0.05},
@@ -504,7 +550,7 @@ TEST_P(EstimatorP, RatioTrackingThroughLinearRamp) {
                  {"density_scale", scale}}};
   scene::Scene s = make_scene(j);
   render::Renderer r(context(), s);
-  render_checked(r, 256, "ramp");
+  render_checked(r, spp, "ramp");
   const vdb::DeviceGrid& g = r.media().grids.at(0);
   double y0 = (g.index_to_world * glm::dvec4(0, g.index_min.y, 0, 1)).y;
   double y1 = (g.index_to_world * glm::dvec4(0, g.index_max.y, 0, 1)).y;
@@ -522,6 +568,51 @@ TEST_P(EstimatorP, RatioTrackingThroughLinearRamp) {
   expect_unbiased(bias_test(estimate(r, ACC_T, ACC_T2), ref), "T through a ramp");
   // The profile really is linear: the exact integral of rho_top * y over [0, 1] up to the voxel-edge terms.
   EXPECT_NEAR(tau_vertical, 0.5 * rho_top, 0.05 * rho_top);
+}
+
+TEST_P(EstimatorP, RatioTrackingThroughLinearRamp) {
+  check_ramp(GetParam(), 2.0, 256);
+}
+
+// Shadow rays by ratio tracking through a dense ramp (optical depth about 4.5 straight up, T about 0.01,
+// where the roulette decides most of the estimate): a floor below the ramp, lit by the sun from straight
+// above and seen from under the ramp, has L = albedo / pi E T. The camera's rays meet no medium.
+TEST_P(EstimatorP, ShadowRaysThroughDenseRamp) {
+  const double scale = 6.0, rho_top = 1.5, albedo = 0.8, E = 3.0;
+  json j = with_estimator(slab_camera(), GetParam());
+  j["camera"] = {{"position", {0, -0.2, 0}}, {"target", {0, -1, 0.2}}, {"up", {0, 0, 1}}, {"fov_y", 40}};
+  j["media"] = {{{"procedural",
+                  {{"kind", "ramp"},
+                   {"voxel_size", 0.05},
+                   {"center", {0, 0.5, 0}},
+                   {"size", {8, 1, 8}},
+                   {"density", rho_top}}},
+                 {"density_scale", scale}}};
+  j["surfaces"] = {{{"mesh", {{"kind", "plane"}, {"size", {20, 20}}}},
+                    {"transform", {{"translate", {0, -0.5, 0}}, {"rotate", {-90, 0, 0}}}},
+                    {"albedo", {albedo, albedo, albedo}}}};
+  j["lights"] = {{"sun", {{"direction", {0, 1, 0}}, {"irradiance", E}, {"angular_diameter", 0}}}};
+  scene::Scene s = make_scene(j);
+  render::Renderer r(context(), s);
+  // The roulette makes T a few rare large values: volpath's (survival 1/4 below 0.05) needs about 4096
+  // samples per pixel before its per-pixel z is normal (chi-square over its critical value at 1024).
+  render_checked(r, 4096, "shadow rays through a ramp");
+  const vdb::DeviceGrid& g = r.media().grids.at(0);
+  double y0 = (g.index_to_world * glm::dvec4(0, g.index_min.y, 0, 1)).y;
+  double y1 = (g.index_to_world * glm::dvec4(0, g.index_max.y, 0, 1)).y;
+  double h = (g.index_to_world * glm::dvec4(0, g.index_min.y + 1, 0, 1)).y - y0;
+  auto rho = [&](double y) {
+    if (y <= y0 - h || y >= y1 + h) return 0.0;
+    if (y < y0) return rho_top * y0 * (y - (y0 - h)) / h;
+    if (y > y1) return rho_top * y1 * ((y1 + h) - y) / h;
+    return rho_top * y;
+  };
+  const double T = std::exp(-scale * integrate(rho, y0 - h, y1 + h, 200000));
+  std::cout << "T through the ramp " << T << "\n";
+  // Injected: ratio tracking's roulette survivors not divided by their survival probability; the pooled
+  // z fell to -25 (default) and -9 (volpath).
+  expect_unbiased(bias_test(estimate(r, ACC_L, ACC_L2, 3), std::vector<double>(144, albedo / M_PI * E * T)),
+                  "floor lit through a ramp");
 }
 
 // Everything at once, where no closed form exists: a cloud with RGB albedo and emission inside bounded haze,
@@ -562,7 +653,7 @@ TEST(Estimator, VolpathAndDefaultAgreeOnAFullScene) {
 // References in double: the device sums at most Renderer::kFoldSamples samples in float before they are
 // folded into double sums on the host. The scheme at 2^24 samples of one value, simulated on the CPU with
 // the same batch: a float running sum stops growing once a sample is below half its ulp (the mean comes out
-// near 0.5 of the truth here), the folded one keeps the mean and the variance to float rounding.
+// 9% low here), the folded one keeps the mean and the variance to float rounding.
 TEST(Reference, FoldedSumsConvergeAt2To24Samples) {
   const int64_t n = int64_t(1) << 24;
   const float x = 0.3f, x2 = x * x;
@@ -583,9 +674,11 @@ TEST(Reference, FoldedSumsConvergeAt2To24Samples) {
   folded2 += batch2;
   const double mean = folded / double(n), var = folded2 / double(n) - mean * mean;
   std::cout << "mean of 2^24 samples of 0.3: float sum " << plain / double(n) << ", folded " << mean << "\n";
-  EXPECT_LT(plain / double(n), 0.9 * x);  // the failure folding prevents
+  EXPECT_LT(plain / double(n), 0.95 * x);  // the failure folding prevents: 0.274 measured
   EXPECT_NEAR(mean, x, 1e-6 * x);
-  EXPECT_NEAR(var, 0.0, 1e-6 * x2);  // a constant: no variance, to float rounding of the squares
+  // A constant has no variance; the folded second moment minus the squared mean leaves float rounding of the
+  // batches' squares: 9.9e-6 x^2 measured.
+  EXPECT_NEAR(var, 0.0, 3e-5 * x2);
 }
 
 // The renderer folds: past kFoldSamples the sums are double on the host, the resolve reads them, and an
@@ -598,7 +691,7 @@ TEST(Reference, RendererFoldsIntoDoubleSums) {
   render::Renderer r(context(), s);
   const int n = 2 * render::Renderer::kFoldSamples + render::Renderer::kFoldSamples / 2;
   render::Image img = render_checked(r, n, "folded render");
-  EXPECT_EQ(r.folded_samples(), 2 * render::Renderer::kFoldSamples);
+  EXPECT_EQ(r.folded_samples(), n);  // two folds while sampling, the rest at the resolve
   const double T = std::exp(-0.7 / camera_directions(s)[0].y);
   Estimate e = estimate(r, ACC_T, ACC_T2);
   const double se = std::sqrt(T * (1 - T) / n);

@@ -1,0 +1,497 @@
+#include "render/renderer.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+
+namespace haze::render {
+
+const std::vector<std::string> kAccumulationLayers = {"acc_l",    "acc_l2",    "acc_vol",   "acc_vol2",
+                                                      "acc_surf", "acc_surf2", "acc_demod", "acc_demod2",
+                                                      "acc_vp",   "acc_emit"};
+const std::vector<std::string> kResolvedLayers = {"out_l",     "out_vol",      "out_surf", "out_var",
+                                                  "out_demod", "out_demod_m2", "out_emit"};
+const std::vector<std::string> kGBufferLayers = {"g_depth", "g_normal", "g_albedo"};
+const std::vector<std::string> kPrevGBufferLayers = {"prev_g_depth", "prev_g_normal", "prev_g_albedo"};
+
+namespace {
+
+// The host offsets of the GLSL headers and the layer lists above describe the same layers.
+static_assert(glsl::ACC_STRIDE == 4 * 10 && glsl::ACC_VP_WT == 4 * 8 && glsl::ACC_EMIT == 4 * 9);
+static_assert(glsl::OUT_STRIDE == 4 * 7 && glsl::OUT_VPDEPTH == 4 * 1 + 3 && glsl::OUT_DEMOD == 4 * 4 &&
+              glsl::OUT_EMIT == 4 * 6);
+static_assert(glsl::G_STRIDE == 4 * 3 && glsl::G_MOTION == 4 * 1 + 2);
+
+// Where a layer's float `offset` (OUT_*, G_*) lives: the layer's index.
+uint32_t layer_of(uint32_t offset) {
+  return offset / 4;
+}
+
+}  // namespace
+
+FrameCounters frame_counters(const std::vector<uint32_t>& words) {
+  auto at = [&](uint32_t c) { return uint64_t(words.at(2 * c)) | (uint64_t(words.at(2 * c + 1)) << 32); };
+  FrameCounters f;
+  f.non_finite = at(glsl::COUNT_NON_FINITE);
+  f.step_cap = at(glsl::COUNT_STEP_CAP);
+  f.majorant = at(glsl::COUNT_MAJORANT);
+  f.clamped_squares = at(glsl::COUNT_CLAMPED_SQUARES);
+  f.lookups = at(glsl::COUNT_LOOKUPS);
+  f.delta_real = at(glsl::COUNT_DELTA_REAL);
+  f.delta_null = at(glsl::COUNT_DELTA_NULL);
+  f.distance_samples = at(glsl::COUNT_DISTANCE);
+  f.guided = at(glsl::COUNT_GUIDED);
+  return f;
+}
+
+double FrameCounters::null_share() const {
+  const uint64_t all = delta_real + delta_null;
+  return all ? double(delta_null) / double(all) : 0.0;
+}
+
+FrameCounters& FrameCounters::operator+=(const FrameCounters& o) {
+  non_finite += o.non_finite;
+  step_cap += o.step_cap;
+  majorant += o.majorant;
+  clamped_squares += o.clamped_squares;
+  lookups += o.lookups;
+  delta_real += o.delta_real;
+  delta_null += o.delta_null;
+  distance_samples += o.distance_samples;
+  guided += o.guided;
+  return *this;
+}
+
+nlohmann::json FrameCounters::discarded_json() const {
+  return {{"non_finite", non_finite}, {"step_cap", step_cap}, {"majorant", majorant}};
+}
+
+nlohmann::json FrameCounters::tracking_json() const {
+  return {{"lookups", lookups},
+          {"delta_real", delta_real},
+          {"delta_null", delta_null},
+          {"null_share", null_share()},
+          {"distance_samples", distance_samples},
+          {"guided", guided}};
+}
+
+std::vector<std::string> counter_notes(const FrameCounters& c) {
+  std::vector<std::string> n;
+  if (c.non_finite > 0)
+    n.push_back(fmt::format(
+        "{} samples had a non-finite radiance and were dropped: their pixels average their other samples "
+        "(biased where such samples are not rare accidents; stats.json discarded.non_finite per frame)",
+        c.non_finite));
+  if (c.step_cap > 0)
+    n.push_back(fmt::format(
+        "{} samples had a tracking query stopped at the step cap ({} steps; its transmittance taken as 0, "
+        "its walk ended): the image is biased dark there; a finer render.majorant_resolution tightens the "
+        "majorant",
+        c.step_cap, volume::kMaxTrackingSteps));
+  if (c.majorant > 0)
+    n.push_back(fmt::format(
+        "{} samples met an extinction above the majorant (clamped as pbrt-v4 does): the image is biased "
+        "there; please report the scene",
+        c.majorant));
+  if (c.clamped_squares > 0)
+    n.push_back(fmt::format(
+        "{} samples had a squared radiance above {:g}, clamped there so that sums of squares stay "
+        "finite; variance and surface_demod_m2 are lower bounds in those pixels",
+        c.clamped_squares, double(glsl::SQUARE_MAX)));
+  return n;
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
+}
+
+nlohmann::json PassStats::to_json() const {
+  std::vector<double> v = ms;
+  std::sort(v.begin(), v.end());
+  double total = 0;
+  for (double x : v) total += x;
+  nlohmann::json j;
+  j["count"] = v.size();
+  j["total_ms"] = total;
+  if (!v.empty()) {
+    j["median_ms"] = median(v);
+    j["min_ms"] = v.front();
+    j["max_ms"] = v.back();
+  }
+  return j;
+}
+
+CameraBasis camera_basis(const scene::Camera& c, const scene::RenderSettings& r) {
+  glm::vec3 fwd = glm::normalize(c.target - c.position);
+  glm::vec3 right = glm::normalize(glm::cross(fwd, c.up));
+  glm::vec3 up = glm::cross(right, fwd);
+  float tan_half = std::tan(glm::radians(c.fov_y) * 0.5f);
+  float aspect = float(r.width) / float(r.height);
+  return {glm::vec4(c.position, 0), glm::vec4(right * tan_half * aspect, 0), glm::vec4(up * tan_half, 0),
+          glm::vec4(fwd, 0)};
+}
+
+uint32_t tonemap_op(const std::string& name) {
+  return name == "aces" ? 0u : (name == "reinhard" ? 1u : 2u);
+}
+
+TonemapPush tonemap_push(const scene::RenderSettings& r, uint32_t pixels, glm::uvec2 surface_layout,
+                         glm::uvec2 volume_layout) {
+  return {pixels,          surface_layout.x,      surface_layout.y,     volume_layout.x,
+          volume_layout.y, std::exp2(r.exposure), tonemap_op(r.tonemap)};
+}
+
+gpu::KernelDecl tonemap_decl(uint64_t pixels, bool surface_half, bool volume_half) {
+  gpu::KernelDecl d("denoise/tonemap.comp");
+  d.buffer("surface", pixels * (surface_half ? 8 : 12))
+      .buffer("volume", pixels * (volume_half ? 8 : 12))
+      .buffer("ldr", pixels * 4)
+      .push(sizeof(TonemapPush))
+      .specialize({surface_half ? 1u : 0u, volume_half ? 1u : 0u});
+  return d;
+}
+
+Renderer::Renderer(gpu::Context& ctx, const scene::Scene& s, uint32_t frame, const scene::Scene* prev)
+    : ctx_(ctx), scene_(s), media_(ctx), surfaces_(ctx), lights_(ctx), guide_(ctx) {
+  timer_ = std::make_unique<gpu::Timer>(ctx, 48);
+  shaders_at_start_ = ctx.shaders().stats();
+  load(s, frame, prev, true);
+}
+
+Renderer::~Renderer() = default;
+
+gpu::Kernel Renderer::kernel(gpu::KernelDecl decl) {
+  gpu::Kernel k(ctx_, std::move(decl));
+  pipeline_ms_ += k.setup_ms();
+  return k;
+}
+
+void Renderer::set_scene(const scene::Scene& s, uint32_t frame, const scene::Scene* prev) {
+  load(s, frame, prev, false);
+}
+
+void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* prev, bool fresh) {
+  const scene::Scene& p = prev ? *prev : s;
+  scene_ = s;
+  media_.update(s, p);
+  surfaces_.update(s, p);
+  std::vector<lights::Emitter> emitters;
+  for (const auto& e : surfaces_.geometry().emitters) emitters.push_back({e.v0, e.v1, e.v2, e.radiance});
+  lights_.update(s.lights, emitters);
+  // Guiding learns where light scatters towards the camera: it needs a medium and a light, and the default
+  // estimator's distance sampling on camera rays (volpath has none).
+  const bool guided = s.guiding.enabled && media_.any() && lights_.any() && s.render.estimator == "default";
+  guide_.update(s.guiding, uint32_t(s.render.width), uint32_t(s.render.height), guided, fresh);
+
+  // The scene block: the camera and settings here, each part's share from the part.
+  glsl::GpuScene g{};
+  const CameraBasis cb = camera_basis(s.camera, s.render), pb = camera_basis(p.camera, s.render);
+  g.cam_position = cb.position;
+  g.cam_right = cb.right;
+  g.cam_up = cb.up;
+  g.cam_forward = cb.forward;
+  g.prev_cam_position = pb.position;
+  g.prev_cam_right = pb.right;
+  g.prev_cam_up = pb.up;
+  g.prev_cam_forward = pb.forward;
+  g.size = glm::uvec4(s.render.width, s.render.height, s.render.volume_samples, s.render.max_depth);
+  g.counts.w = s.render.seed ^ (frame * 0x9e3779b9u);
+  g.settings = glm::vec4(s.render.equiangular_probability, s.render.rr_threshold,
+                         s.render.pixel_jitter ? 1.f : 0.f, 0);
+  media_.fill(g);
+  lights_.fill(g);
+  surfaces_.fill(g);
+  guide_.fill(g);
+  if (!scene_buf_.valid()) scene_buf_ = gpu::Buffer(ctx_, "scene", "scene data", sizeof(g), "GpuScene");
+  if (!counters_.valid())
+    counters_ =
+        gpu::Buffer(ctx_, "frame counters", "per-frame temporaries", glsl::COUNTERS * 8, "u64 COUNT_*");
+  scene_buf_.upload(&g, sizeof(g));
+
+  // The frame's layers, remade only when the size changes.
+  const uint64_t pixels = uint64_t(s.render.width) * s.render.height;
+  if (accum_.pixels() != pixels) {
+    accum_ = gpu::PixelLayers(ctx_, "accumulation", "per-frame temporaries", pixels, kAccumulationLayers);
+    out_ = gpu::PixelLayers(ctx_, "resolved", "outputs", pixels, kResolvedLayers);
+    gbuffer_ = gpu::PixelLayers(ctx_, "g-buffer", "per-frame temporaries", pixels, kGBufferLayers);
+    prev_gbuffer_ =
+        gpu::PixelLayers(ctx_, "previous g-buffer", "previous-frame data", pixels, kPrevGBufferLayers);
+    ldr_ = gpu::Buffer(ctx_, "preview", "outputs", pixels * 4, "RGBA8");
+    has_frame_ = false;  // the resolved layers keep the last frame's virtual point depth for volume motion
+  }
+  accum_.fill_zero();
+  samples_ = 0;
+  folded_.clear();
+  folded_samples_ = 0;
+
+  // The kernels of exactly this scene's features.
+  gpu::KernelDecl t("volume/trace.comp");
+  t.buffer("scene", sizeof(g));
+  accum_.declare(t);
+  t.buffer("counters", glsl::COUNTERS * 8);
+  media_.declare(t);
+  lights_.declare(t);
+  if (s.render.max_depth > 1) t.define("HAZE_MULTI");
+  if (s.render.estimator == "volpath") t.define("HAZE_VOLPATH");
+  surfaces_.declare(t);
+  guide_.declare(t);
+  trace_ = kernel(std::move(t.push(4)));
+  gpu::KernelDecl r("volume/resolve.comp");
+  accum_.declare(r);
+  out_.declare(r);
+  resolve_ = kernel(std::move(r.buffer("ldr", pixels * 4).push(16)));
+  gpu::KernelDecl gb("surfaces/gbuffer.comp");
+  gb.buffer("scene", sizeof(g));
+  gbuffer_.declare(gb);
+  surfaces_.declare(gb);
+  gbuffer_pass_ = kernel(std::move(gb));
+
+  // The surface instance on the demodulated surface signal; the volume instance on the volume signal with
+  // albedo 1 and the volume motion vectors. Each keeps its history across frames of the same size.
+  keep_svgf(svgf_surface_, "surface", surfaces_.any() && s.denoise.surface.enabled, s.denoise.surface, true);
+  keep_svgf(svgf_volume_, "volume", media_.any() && s.denoise.volume.enabled, s.denoise.volume, false);
+  if (svgf_surface_ || svgf_volume_)
+    tonemap_ = kernel(tonemap_decl(pixels, bool(svgf_surface_), bool(svgf_volume_)));
+  const bool virtual_points = svgf_volume_ && s.denoise.volume_motion == "virtual_points";
+  if (virtual_points || (guide_.active() && s.guiding.temporal)) {
+    if (!volume_motion_ || volume_motion_->width() != uint32_t(s.render.width) ||
+        volume_motion_->height() != uint32_t(s.render.height)) {
+      volume_motion_.reset();
+      volume_motion_ = std::make_unique<guiding::VolumeMotion>(ctx_, s.render.width, s.render.height);
+      pipeline_ms_ += volume_motion_->pipeline_ms();
+    }
+  } else {
+    volume_motion_.reset();
+  }
+}
+
+void Renderer::restart(const scene::Scene& s, uint32_t frame, const scene::Scene* prev) {
+  svgf_surface_.reset();
+  svgf_volume_.reset();
+  has_frame_ = false;
+  passes_.clear();
+  pipeline_ms_ = 0;
+  shaders_at_start_ = ctx_.shaders().stats();
+  load(s, frame, prev, true);
+}
+
+void Renderer::keep_svgf(std::unique_ptr<denoise::Svgf>& svgf, const char* name, bool wanted,
+                         const denoise::SvgfParams& params, bool remodulate) {
+  const auto& r = scene_.render;
+  if (!wanted) {
+    svgf.reset();
+  } else if (svgf && svgf->width() == uint32_t(r.width) && svgf->height() == uint32_t(r.height)) {
+    svgf->set_params(params);
+  } else {
+    svgf.reset();
+    svgf = std::make_unique<denoise::Svgf>(ctx_, name, params, r.width, r.height, remodulate);
+    pipeline_ms_ += svgf->pipeline_ms();
+  }
+}
+
+bool Renderer::has_feature(std::string_view name) const {
+  return trace_.decl().defined("HAZE_" + std::string(name));
+}
+
+gpu::Bindings Renderer::frame_bindings() const {
+  gpu::Bindings b;
+  b.set("scene", scene_buf_).set("ldr", ldr_).set("counters", counters_);
+  accum_.bind(b);
+  out_.bind(b);
+  gbuffer_.bind(b);
+  media_.bind(b);
+  lights_.bind(b);
+  surfaces_.bind(b);
+  guide_.bind(b);
+  return b;
+}
+
+void Renderer::record_times() {
+  for (auto& [name, ms] : timer_->read_ms()) passes_[name].ms.push_back(ms);
+}
+
+void Renderer::start_frame(VkCommandBuffer cmd) {
+  const auto& r = scene_.render;
+  counters_.fill_zero(cmd);
+  // Keep the last frame's G-buffer, then write this one's.
+  gbuffer_.copy_to(cmd, prev_gbuffer_);
+  gpu::compute_barrier(cmd);
+  timer_->begin(cmd, "gbuffer");
+  const auto [gx, gy] = gbuffer_pass_.groups_2d(uint32_t(r.width), uint32_t(r.height));
+  gbuffer_pass_.dispatch(cmd, frame_bindings(), nullptr, gx, gy);
+  timer_->end(cmd);
+  gpu::compute_barrier(cmd);
+  if (volume_motion_) {
+    // The resolved layers still hold the previous frame's; without one, no point is projected.
+    if (!has_frame_) out_.fill_zero(cmd);
+    guiding::VolumeMotionInputs in;
+    in.scene = &scene_buf_;
+    in.prev_depth = &out_[layer_of(glsl::OUT_VPDEPTH)];
+    in.depth_stride = 4;
+    in.depth_offset = glsl::OUT_VPDEPTH % 4;
+    in.g_normal = &gbuffer_[layer_of(glsl::G_MOTION)];
+    in.media = media_.motion();
+    in.media_count = media_.moving();
+    volume_motion_->run(cmd, timer_.get(), in);
+  }
+  guide_.start_frame(cmd, timer_.get(), scene_buf_, volume_motion_ ? &volume_motion_->output() : nullptr,
+                     has_frame_);
+}
+
+void Renderer::add_samples(int n, const std::function<void(int, int)>& progress) {
+  const auto& r = scene_.render;
+  const auto [gx, gy] = trace_.groups_2d(uint32_t(r.width), uint32_t(r.height));
+  const gpu::Bindings b = frame_bindings();
+  for (int i = 0; i < n; ++i) {
+    uint32_t sample_index = uint32_t(samples_);
+    ctx_.submit_and_wait([&](VkCommandBuffer cmd) {
+      timer_->reset(cmd);
+      if (samples_ == 0) start_frame(cmd);
+      timer_->begin(cmd, "trace");
+      trace_.dispatch(cmd, b, &sample_index, gx, gy);
+      // The next sample reads the states this one wrote.
+      if (guide_.active()) gpu::compute_barrier(cmd);
+      timer_->end(cmd);
+    });
+    record_times();
+    ++samples_;
+    if (samples_ - folded_samples_ >= kFoldSamples) fold();
+    if (progress) progress(i + 1, n);
+  }
+}
+
+Image Renderer::resolve() {
+  const auto& r = scene_.render;
+  uint32_t pixels = uint32_t(r.width) * uint32_t(r.height);
+  // The preview composites the denoised signals (or the noisy one where an instance does not run).
+  const gpu::Buffer& surf = out_[layer_of(glsl::OUT_SURF)];
+  const gpu::Buffer& vol = out_[layer_of(glsl::OUT_VOL)];
+  const TonemapPush tp =
+      tonemap_push(r, pixels, glm::uvec2(4, glsl::OUT_SURF % 4), glm::uvec2(4, glsl::OUT_VOL % 4));
+  struct {
+    uint32_t pixels, samples;
+    float exposure_scale;
+    uint32_t tonemap;
+  } push{pixels, uint32_t(samples_), tp.exposure_scale, tp.tonemap};
+  // After a fold the resolve reads the double sums, rounded to float once; the device sums start afresh.
+  const bool folded = folded_samples_ > 0;
+  if (folded) {
+    fold();
+    accum_.upload(std::vector<float>(folded_.begin(), folded_.end()));
+  }
+  ctx_.submit_and_wait([&](VkCommandBuffer cmd) {
+    timer_->reset(cmd);
+    timer_->begin(cmd, "resolve");
+    resolve_.dispatch_1d(cmd, frame_bindings(), &push, pixels);
+    timer_->end(cmd);
+    if (!svgf_surface_ && !svgf_volume_) return;
+    gpu::compute_barrier(cmd);
+    denoise::SvgfInputs in;
+    in.gbuffer = &gbuffer_;
+    in.prev_gbuffer = &prev_gbuffer_;
+    in.motion = &gbuffer_[layer_of(glsl::G_MOTION)];
+    in.motion_stride = 4;
+    in.motion_offset = glsl::G_MOTION % 4;
+    in.colour_stride = 4;
+    if (svgf_surface_) {
+      in.colour = &out_[layer_of(glsl::OUT_DEMOD)];
+      in.colour_offset = glsl::OUT_DEMOD % 4;
+      in.emission = &out_[layer_of(glsl::OUT_EMIT)];  // added back after remodulation
+      in.emission_stride = 4;
+      in.emission_offset = glsl::OUT_EMIT % 4;
+      svgf_surface_->run(cmd, timer_.get(), in);
+    }
+    if (svgf_volume_) {
+      in.emission = nullptr;
+      in.colour = &vol;
+      in.colour_offset = glsl::OUT_VOL % 4;
+      if (scene_.denoise.volume_motion == "virtual_points") {
+        in.motion = &volume_motion_->output();
+        in.motion_stride = 4;
+        in.motion_offset = 0;
+      }
+      svgf_volume_->run(cmd, timer_.get(), in);
+    }
+    timer_->begin(cmd, "tonemap");
+    gpu::Bindings b;
+    b.set("surface", svgf_surface_ ? svgf_surface_->output() : surf);
+    b.set("volume", svgf_volume_ ? svgf_volume_->output() : vol);
+    b.set("ldr", ldr_);
+    tonemap_.dispatch_1d(cmd, b, &tp, pixels);
+    timer_->end(cmd);
+  });
+  record_times();
+  if (folded) accum_.fill_zero();
+  has_frame_ = true;
+  Image img;
+  img.width = r.width;
+  img.height = r.height;
+  img.samples = samples_;
+  img.data = out_.download();
+  img.ldr = ldr_.download_vector<uint32_t>();
+  img.gbuffer = gbuffer_.download();
+  if (svgf_surface_) img.surface_denoised = svgf_surface_->download();
+  if (svgf_volume_) img.volume_denoised = svgf_volume_->download();
+  if (volume_motion_) img.volume_motion = volume_motion_->download();
+  img.counters = frame_counters(counters_.download_vector<uint32_t>());
+  return img;
+}
+
+std::vector<double> Renderer::accum() const {
+  const std::vector<float> device = accum_.download();
+  std::vector<double> sums(device.begin(), device.end());
+  for (size_t i = 0; i < folded_.size(); ++i) sums[i] += folded_[i];
+  return sums;
+}
+
+void Renderer::fold() {
+  const std::vector<float> device = accum_.download();
+  folded_.resize(device.size(), 0.0);
+  for (size_t i = 0; i < device.size(); ++i) folded_[i] += device[i];
+  folded_samples_ = samples_;
+  accum_.fill_zero();
+}
+
+std::vector<std::string> Renderer::notes() const {
+  std::vector<std::string> n = media_.host().notes;
+  const auto& g = surfaces_.geometry().notes;
+  n.insert(n.end(), g.begin(), g.end());
+  return n;
+}
+
+nlohmann::json Renderer::stats() const {
+  nlohmann::json j;
+  j["device"] = ctx_.describe();
+  // The trace kernel's features, lower case: "haze+sun", "empty" for none.
+  std::string features;
+  for (const auto& [name, value] : trace_.decl().defines()) {
+    std::string f = name.rfind("HAZE_", 0) == 0 ? name.substr(5) : name;
+    std::transform(f.begin(), f.end(), f.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+    features += (features.empty() ? "" : "+") + f;
+  }
+  j["features"] = features.empty() ? "empty" : features;
+  nlohmann::json kernels = nlohmann::json::array();
+  for (const gpu::Kernel* k : {&trace_, &resolve_, &gbuffer_pass_, &tonemap_})
+    if (k->valid()) kernels.push_back(k->decl().describe());
+  j["kernels"] = kernels;
+  const gpu::ShaderCacheStats now = ctx_.shaders().stats();
+  j["shaders"] = {{"compiled", now.compiled - shaders_at_start_.compiled},
+                  {"cache_hits", now.cache_hits - shaders_at_start_.cache_hits},
+                  {"compile_ms", now.compile_ms - shaders_at_start_.compile_ms}};
+  j["samples"] = samples_;
+  j["pipeline_creation_ms"] = pipeline_ms_;
+  nlohmann::json p = nlohmann::json::object();
+  for (const auto& [name, st] : passes_) p[name] = st.to_json();
+  j["passes"] = p;
+  j["memory"] = ctx_.ledger().to_json();
+  j["notes"] = notes();
+  const auto& maj = media_.host().majorant;
+  j["majorant_resolution"] = {maj.res.x, maj.res.y, maj.res.z};
+  return j;
+}
+
+}  // namespace haze::render
