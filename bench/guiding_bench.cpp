@@ -59,14 +59,22 @@ eval::Channels denoised_volume_of(const render::Image& img) {
   return {&img.volume_denoised->colour[0].x, size_t(img.width) * img.height, 3, 0};
 }
 
-// Median GPU time of one trace dispatch, after a warm-up sample (lavapipe compiles on the first dispatch).
-double trace_ms(gpu::Context& ctx, const scene::Scene& s, int samples) {
-  render::Renderer r(ctx, s);
-  r.add_samples(1);
-  const size_t warm = r.pass_stats().at("trace").ms.size();
-  r.add_samples(samples);
-  const auto& ms = r.pass_stats().at("trace").ms;
-  return render::median(std::vector<double>(ms.begin() + long(warm), ms.end()));
+// Median GPU times of one trace dispatch of two scenes, their samples interleaved one by one after a warm-up
+// sample each (lavapipe compiles on the first dispatch), so that the machine's drift touches both alike.
+std::pair<double, double> trace_ms(gpu::Context& ctx, const scene::Scene& a, const scene::Scene& b,
+                                   int samples) {
+  render::Renderer ra(ctx, a), rb(ctx, b);
+  ra.add_samples(1);
+  rb.add_samples(1);
+  for (int i = 0; i < samples; ++i) {
+    ra.add_samples(1);
+    rb.add_samples(1);
+  }
+  auto median_after_warmup = [](const render::Renderer& r) {
+    const auto& ms = r.pass_stats().at("trace").ms;
+    return render::median(std::vector<double>(ms.begin() + 1, ms.end()));
+  };
+  return {median_after_warmup(ra), median_after_warmup(rb)};
 }
 
 json summary(const std::vector<double>& v) {
@@ -85,8 +93,8 @@ scene::Scene make(const json& j) {
 json equal_time(gpu::Context& ctx, const GuidingBenchOptions& o, bool vdb) {
   const int w = o.width, h = o.height;
   // Per-sample cost of each estimator, measured once: the guided one gets spp * (t_u / t_g) samples.
-  const double t_u = trace_ms(ctx, make(shaft_scene(w, h, vdb, false, 1)), 6);
-  const double t_g = trace_ms(ctx, make(shaft_scene(w, h, vdb, true, 1)), 6);
+  const auto [t_u, t_g] =
+      trace_ms(ctx, make(shaft_scene(w, h, vdb, false, 1)), make(shaft_scene(w, h, vdb, true, 1)), 16);
   const int spp_g = std::max(1, int(std::lround(o.spp * t_u / t_g)));
   scene::Scene ref_scene = make(shaft_scene(w, h, vdb, false, 7777));
   render::Renderer ref(ctx, ref_scene);
