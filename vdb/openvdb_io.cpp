@@ -483,28 +483,36 @@ openvdb::FloatGrid::Ptr voxel_grid(const VoxelGrid& v) {
 
 void write_procedural(const ProceduralSpec& spec, const std::string& out_path,
                       const ProceduralExtras& extras) {
+  write_procedural(spec, {{out_path, extras.offset}}, extras.velocity);
+}
+
+void write_procedural(const ProceduralSpec& spec, const std::vector<ProceduralFile>& files,
+                      std::optional<glm::dvec3> velocity) {
+  auto finite = [](glm::dvec3 v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); };
+  if (velocity && !finite(*velocity))
+    throw Error(fmt::format("{}: the velocity must be finite", files.empty() ? "" : files[0].path));
   openvdb::FloatGrid::Ptr density = build_procedural(spec);
-  const glm::dvec3 o = extras.offset;
-  if (!std::isfinite(o.x) || !std::isfinite(o.y) || !std::isfinite(o.z))
-    throw Error(fmt::format("{}: the offset must be finite", out_path));
-  density->transform().postTranslate(openvdb::Vec3d(o.x, o.y, o.z));
+  const openvdb::math::Transform::Ptr base = density->transform().copy();
   openvdb::GridPtrVec grids{density};
-  if (extras.velocity) {
-    const glm::dvec3 v = *extras.velocity;
-    if (!std::isfinite(v.x) || !std::isfinite(v.y) || !std::isfinite(v.z))
-      throw Error(fmt::format("{}: the velocity must be finite", out_path));
+  if (velocity) {
     openvdb::CoordBBox box = density->evalActiveVoxelBoundingBox();
     box.expand(2);
     const char* names[3] = {"vel.x", "vel.y", "vel.z"};
     for (int c = 0; c < 3; ++c) {
       auto g = openvdb::FloatGrid::create(0.f);
       g->setName(names[c]);
-      g->setTransform(density->transform().copy());
-      g->fill(box, float(v[c]), true);
+      g->fill(box, float((*velocity)[c]), true);
       grids.push_back(g);
     }
   }
-  write_file(grids, out_path);
+  for (const ProceduralFile& f : files) {
+    if (!finite(f.offset)) throw Error(fmt::format("{}: the offset must be finite", f.path));
+    // The voxels stay; the transform carries the offset.
+    openvdb::math::Transform::Ptr xf = base->copy();
+    xf->postTranslate(openvdb::Vec3d(f.offset.x, f.offset.y, f.offset.z));
+    for (auto& g : grids) g->setTransform(xf->copy());
+    write_file(grids, f.path);
+  }
 }
 
 void write_grids(const std::vector<VoxelGrid>& grids, const std::string& out_path) {

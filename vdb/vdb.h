@@ -110,6 +110,13 @@ struct ProceduralExtras {
 // Writes a .vdb with one float fog-volume grid "density" and the extras (to a temporary file, then renamed).
 void write_procedural(const ProceduralSpec& spec, const std::string& out_path,
                       const ProceduralExtras& extras = {});
+// The same volume, built once, written to several files (a sequence), each with its own offset.
+struct ProceduralFile {
+  std::string path;
+  glm::dvec3 offset{0};
+};
+void write_procedural(const ProceduralSpec& spec, const std::vector<ProceduralFile>& files,
+                      std::optional<glm::dvec3> velocity);
 
 // A scalar grid given voxel by voxel (for scripted inputs and tests): float, or half (float stored as half).
 // Voxels not listed hold the background. (No vector types: each grid type costs 12 s of compile time.)
