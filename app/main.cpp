@@ -371,9 +371,9 @@ int main(int argc, char** argv) {
       "bench", "the benchmark suite: ratios measured in one run on one device (docs/benchmarks.md)");
   haze::bench::Options bo;
   bench->add_flag("--json", bo.json, "print JSON instead of a table");
-  bench->add_option(
-      "--only", bo.only,
-      "run only these parts, comma-separated: first_frame, passes, bvh, svgf, guiding, volume_repr");
+  bench->add_option("--only", bo.only,
+                    "run only these parts, comma-separated: first_frame, passes, bvh, svgf, guiding, "
+                    "velocity, volume_repr");
   bench->add_option("--size", bo.size, "image size WIDTHxHEIGHT");
   bench->add_option("--spp", bo.spp, "samples per measurement");
   bench->add_option("--denoise-sizes", bo.denoise_sizes, "sizes of the SVGF timings, WxH[,WxH...]");
