@@ -4,7 +4,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 #include <filesystem>
 #include <glm/gtc/matrix_transform.hpp>
 #include <limits>
