@@ -6,6 +6,7 @@
 #include <cmath>
 #include <numeric>
 
+#include "bench/bench_util.hpp"
 #include "eval/metrics.hpp"
 #include "render/renderer.hpp"
 #include "scene/scene.hpp"
@@ -51,14 +52,6 @@ json shaft_scene(int w, int h, bool vdb, bool guiding, uint32_t seed) {
   return j;
 }
 
-eval::Channels volume_of(const render::Image& img) {
-  return {img.data.data(), size_t(img.width) * img.height, glsl::OUT_STRIDE, glsl::OUT_VOL};
-}
-
-eval::Channels denoised_volume_of(const render::Image& img) {
-  return {&img.volume_denoised->colour[0].x, size_t(img.width) * img.height, 3, 0};
-}
-
 // Median GPU times of one trace dispatch of two scenes, their samples interleaved one by one after a warm-up
 // sample each (lavapipe compiles on the first dispatch), so that the machine's drift touches both alike.
 std::pair<double, double> trace_ms(gpu::Context& ctx, const scene::Scene& a, const scene::Scene& b,
@@ -75,14 +68,6 @@ std::pair<double, double> trace_ms(gpu::Context& ctx, const scene::Scene& a, con
     return render::median(std::vector<double>(ms.begin() + 1, ms.end()));
   };
   return {median_after_warmup(ra), median_after_warmup(rb)};
-}
-
-json summary(const std::vector<double>& v) {
-  double mean = std::accumulate(v.begin(), v.end(), 0.0) / double(v.size());
-  return {{"mean", mean},
-          {"min", *std::min_element(v.begin(), v.end())},
-          {"max", *std::max_element(v.begin(), v.end())},
-          {"values", v}};
 }
 
 scene::Scene make(const json& j) {

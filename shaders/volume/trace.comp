@@ -198,6 +198,7 @@ void main() {
   float g = 0.0f;             // phase anisotropy at a volume vertex
   bool on_surface = false;    // the vertex is on a surface (normal n, albedo alb) rather than in a medium
   vec3 n = vec3(0.0f, 1.0f, 0.0f), alb = vec3(0.0f);
+  vec3 ns = n;  // the shading normal (surfaces/material.glsl); n, the geometric one, offsets rays
   // Surface the current walk ray reaches if no medium stops it first.
   bool walk_hit = false;
 #if HAZE_SURFACES
@@ -371,6 +372,7 @@ void main() {
           E_surf = L_surf;
           x = cam_o + cam_d * t_s;
           n = dot(cam_h.normal, cam_d) < 0.0f ? cam_h.normal : -cam_h.normal;
+          ns = surface_normal(cam_h, n);
           alb = surface_albedo(cam_h);
           albedo0 = alb;
           on_surface = true;
@@ -414,14 +416,16 @@ void main() {
         bool walk_on = depth < max_depth;
         if (walk_on) {
           if (on_surface) {
-            // Lambertian: cosine sampling makes the weight the albedo.
-            d = sample_cosine_hemisphere(n, vec2(rng_next(rng), rng_next(rng)));
+            // Lambertian: cosine sampling makes the weight the albedo. A bounce below the geometric surface
+            // reflects nothing (no light leaks through a coarse mesh's terminator).
+            d = sample_cosine_hemisphere(ns, vec2(rng_next(rng), rng_next(rng)));
             beta *= alb;
             x += n * surface_epsilon(x);
+            walk_on = dot(d, n) > 0.0f;
 #if HAZE_VOLPATH
             // pbrt-v4's roulette, at surface vertices after the first: survive with the throughput.
             float m = max(beta.x, max(beta.y, beta.z));
-            if (depth > 1u && m < 1.0f) {
+            if (walk_on && depth > 1u && m < 1.0f) {
               if (rng_next(rng) >= m)
                 walk_on = false;
               else
@@ -490,6 +494,7 @@ void main() {
           // Emission of surfaces reached by the walk is counted by NEE, which samples emissive triangles.
           x = x + d * q_t1;
           n = dot(walk_h.normal, d) < 0.0f ? walk_h.normal : -walk_h.normal;
+          ns = surface_normal(walk_h, n);
           alb = surface_albedo(walk_h);
           on_surface = true;
           vertex = true;
@@ -532,9 +537,11 @@ void main() {
 #if HAZE_LIGHTS
         vec3 o = on_surface ? x + n * surface_epsilon(x) : x;
         LightSample ls = sample_light(o, vec3(rng_next(rng), rng_next(rng), rng_next(rng)));
+#if HAZE_SURFACES
         if (on_surface)
-          pending = beta * alb * (INV_PI * max(dot(n, ls.wi), 0.0f)) * ls.Li;
+          pending = beta * alb * (INV_PI * surface_cosine(n, ns, ls.wi)) * ls.Li;
         else
+#endif
           pending = beta * hg_phase(dot(ls.wi, d), g) * ls.Li;
         bool visible = any(greaterThan(pending, vec3(0.0f)));
 #if HAZE_SURFACES
