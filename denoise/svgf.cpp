@@ -224,9 +224,11 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
 }
 
 SvgfResult Svgf::download() const {
-  const size_t pixels = size_t(width_) * height_;
-  std::vector<glm::uvec2> out = taa_.download_vector<glm::uvec2>();
-  std::vector<float> m = moments_.download_vector<float>();
+  return decode(size_t(width_) * height_, taa_.download_vector<glm::uvec2>(),
+                moments_.download_vector<float>());
+}
+
+SvgfResult Svgf::decode(size_t pixels, const std::vector<glm::uvec2>& out, const std::vector<float>& m) {
   SvgfResult r;
   r.colour.resize(pixels);
   r.history.resize(pixels);

@@ -62,8 +62,12 @@ class Svgf {
   // Records the passes of one frame (timer scopes "svgf.<name>.<pass>" when a timer is given).
   void run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in);
   SvgfResult download() const;
+  // download() of copies of output() and moments() (a frame's readback).
+  static SvgfResult decode(size_t pixels, const std::vector<glm::uvec2>& output,
+                           const std::vector<float>& moments);
 
-  const gpu::Buffer& output() const { return taa_; }  // half rgb + sigma per pixel (see taa.comp)
+  const gpu::Buffer& output() const { return taa_; }       // half rgb + sigma per pixel (see taa.comp)
+  const gpu::Buffer& moments() const { return moments_; }  // SVGF_MOMENTS_STRIDE floats per pixel
   uint32_t width() const { return width_; }
   uint32_t height() const { return height_; }
   const std::string& name() const { return name_; }
