@@ -378,7 +378,7 @@ int main(int argc, char** argv) {
   bench->add_flag("--json", bo.json, "print JSON instead of a table");
   bench->add_option(
       "--only", bo.only,
-      "run only these parts, comma-separated: first_frame, passes, bvh, svgf, guiding, volume_repr");
+      "run only these parts, comma-separated: first_frame, passes, bvh, svgf, guiding, volume_repr, view");
   bench->add_option("--size", bo.size, "image size WIDTHxHEIGHT");
   bench->add_option("--spp", bo.spp, "samples per measurement");
   bench->add_option("--denoise-sizes", bo.denoise_sizes, "sizes of the SVGF timings, WxH[,WxH...]");

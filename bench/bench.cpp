@@ -16,6 +16,7 @@
 
 #include "bench/bench_util.hpp"
 #include "bench/guiding_bench.hpp"
+#include "bench/view_bench.hpp"
 #include "bench/volume_repr_bench.hpp"
 #include "denoise/svgf.hpp"
 #include "render/renderer.hpp"
@@ -377,6 +378,13 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
             j["svgf_surface"][sz][kernel]["total"]["ratio_to_copy"],
             fmt::format("surface SVGF, all passes of a frame ({} a-trous) / copy of one RGBA16F image",
                         kernel));
+  if (j.contains("view") && !j["view"].contains("skipped")) {
+    const auto& r = j["view"]["wall_over_gpu"];
+    add("viewer wall/GPU", r["mean"],
+        fmt::format(
+            "viewer frame wall time / GPU time of its passes, mean over seeds ({:.3f}..{:.3f}); goal <= 1.15",
+            r["min"].get<double>(), r["max"].get<double>()));
+  }
   if (j.contains("bvh"))
     add("BVH GPU/Embree", j["bvh"]["gpu_over_embree"],
         "BVH rays/s on the GPU / Embree rays/s on all CPU threads, same rays and triangles");
@@ -428,8 +436,8 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
 }  // namespace
 
 const std::vector<std::string>& part_names() {
-  static const std::vector<std::string> names = {"first_frame", "passes",  "bvh",
-                                                 "svgf",        "guiding", "volume_repr"};
+  static const std::vector<std::string> names = {"first_frame", "passes",      "bvh", "svgf",
+                                                 "guiding",     "volume_repr", "view"};
   return names;
 }
 
@@ -490,6 +498,7 @@ int run(const Options& o, const gpu::ContextOptions& co) {
     vo.invocations = uint32_t(w) * uint32_t(h);
     j["volume_repr"] = bench_volume_repr(ctx, vo);
   }
+  if (wants("view")) j["view"] = bench_view(co, s, ViewBenchOptions{});
   const std::vector<std::string> svgf_sizes = split(o.denoise_sizes, ',');
   const json rows = summarize(j, svgf_sizes);
   json summary = json::object();
@@ -563,6 +572,7 @@ int run(const Options& o, const gpu::ContextOptions& co) {
       }
     if (j.contains("guiding")) print_guiding(j["guiding"]);
     if (j.contains("volume_repr")) print_volume_repr(j["volume_repr"]);
+    if (j.contains("view")) print_view(j["view"]);
   }
   if (messages > 0) {
     fmt::print(stderr, "haze: {} Vulkan validation messages\n", messages);

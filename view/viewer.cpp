@@ -451,7 +451,7 @@ void Viewer::draw_ui() {
                          last);
     }
   }
-  if (ImGui::CollapsingHeader("Memory")) {
+  if (ImGui::CollapsingHeader("Memory", ImGuiTreeNodeFlags_DefaultOpen)) {
     const auto& ledger = ctx_->ledger();
     const uint64_t total = std::max<uint64_t>(ledger.total(), 1);
     std::vector<std::pair<std::string, uint64_t>> cats(ledger.per_category().begin(),
