@@ -12,6 +12,8 @@ cleanup() {
   rm -rf "$tmp"
 }
 trap cleanup EXIT
+trap "exit 143" TERM
+trap "exit 130" INT
 for _ in $(seq 200); do
   [ -s "$tmp/display" ] && break
   if ! kill -0 "$xvfb" 2>/dev/null; then

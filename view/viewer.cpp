@@ -454,8 +454,8 @@ void Viewer::draw_ui() {
   if (ImGui::CollapsingHeader("Memory", ImGuiTreeNodeFlags_DefaultOpen)) {
     const auto& ledger = ctx_->ledger();
     const uint64_t total = std::max<uint64_t>(ledger.total(), 1);
-    std::vector<std::pair<std::string, uint64_t>> cats(ledger.per_category().begin(),
-                                                       ledger.per_category().end());
+    const std::map<std::string, uint64_t> per_category = ledger.per_category();  // a copy: iterate one
+    std::vector<std::pair<std::string, uint64_t>> cats(per_category.begin(), per_category.end());
     std::sort(cats.begin(), cats.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
     ImGui::Text("%.2f MB (peak %.2f MB)", double(ledger.total()) / 1e6, double(ledger.peak()) / 1e6);
     for (const auto& [name, bytes] : cats) {
