@@ -139,8 +139,9 @@ class TransferImage {
 
 struct FrameRecord {
   int frame = 0;
-  double wall_ms = 0;  // since the previous present
-  double gpu_ms = -1;  // every timed pass of the frame; arrives a frame late
+  double wall_ms = 0;                     // since the previous present
+  double acquire_ms = 0, present_ms = 0;  // the host inside vkAcquireNextImageKHR and vkQueuePresentKHR
+  double gpu_ms = -1;                     // every timed pass of the frame; arrives a frame late
   int samples = 0;
   bool compiling = false;
   std::string layer;
@@ -161,6 +162,7 @@ class Viewer {
   void handle_input(double dt);
   void draw_ui();
   void frame(int n);
+  void present_previous();
   void save_scene(const std::string& path) const;
   nlohmann::json run_stats() const;
 
@@ -195,6 +197,7 @@ class Viewer {
   std::vector<FrameRecord> records_;
   std::deque<std::map<std::string, double>> graph_;
   clock::time_point last_present_{};
+  std::optional<std::pair<uint32_t, size_t>> unpresented_;  // submitted, not yet presented: image, record
   std::optional<glm::dvec2> last_cursor_;
   double scroll_ = 0;
   std::string screenshot_now_, save_image_now_;
@@ -279,6 +282,7 @@ void Viewer::make_display() {
 }
 
 void Viewer::recreate_swapchain() {
+  present_previous();
   glm::ivec2 fb = window_->framebuffer_size();
   while (fb.x == 0 || fb.y == 0) {  // minimised
     glfwWaitEvents();
@@ -505,7 +509,10 @@ void Viewer::frame(int n) {
   VkCommandBuffer cmd = ring_->begin();
   const uint32_t slot = uint32_t(ring_->submitted() % ring_->frames());
   uint32_t image = 0;
-  if (!swapchain_->acquire(acquired_[slot], &image)) {
+  const auto t_acquire = clock::now();
+  const bool acquired = swapchain_->acquire(acquired_[slot], &image);
+  const double acquire_ms = ms_between(t_acquire, clock::now());
+  if (!acquired) {
     ring_->submit();  // an empty frame
     recreate_swapchain();
     return;
@@ -653,9 +660,23 @@ void Viewer::frame(int n) {
   VkSemaphore wait = acquired_[slot];
   const VkPipelineStageFlags stage = VK_PIPELINE_STAGE_TRANSFER_BIT;
   ring_->submit({&wait, 1}, {&stage, 1}, {&rendered_[image], 1});
+  records_.back().acquire_ms = acquire_ms;
+  // The previous frame is presented now, after this one was submitted: a driver whose present waits for
+  // the frame (lavapipe's X11 path copies it on the CPU) then waits while this frame is already queued, and
+  // the host's work on the next frame overlaps this one on the device.
+  present_previous();
+  unpresented_ = {image, records_.size() - 1};
+}
+
+void Viewer::present_previous() {
+  if (!unpresented_) return;
+  const auto [image, record] = *unpresented_;
+  unpresented_.reset();
+  const auto t_present = clock::now();
   const bool ok = swapchain_->present(image, rendered_[image]);
   const auto now = clock::now();
-  records_.back().wall_ms = last_present_ == clock::time_point{} ? 0 : ms_between(last_present_, now);
+  records_[record].present_ms = ms_between(t_present, now);
+  records_[record].wall_ms = last_present_ == clock::time_point{} ? 0 : ms_between(last_present_, now);
   last_present_ = now;
   if (!ok) recreate_swapchain();
 }
@@ -665,6 +686,8 @@ nlohmann::json Viewer::run_stats() const {
   for (const auto& r : records_)
     frames.push_back({{"frame", r.frame},
                       {"wall_ms", r.wall_ms},
+                      {"acquire_ms", r.acquire_ms},
+                      {"present_ms", r.present_ms},
                       {"gpu_ms", r.gpu_ms},
                       {"samples", r.samples},
                       {"compiling", r.compiling},
@@ -724,6 +747,7 @@ ViewRun Viewer::run() {
       if (!st->entry.save_scene.empty()) save_scene(st->entry.save_scene);
     ring_->poll();
   }
+  present_previous();
   ring_->finish();
   ViewRun run;
   run.stats = run_stats();
