@@ -12,8 +12,6 @@ cleanup() {
   rm -rf "$tmp"
 }
 trap cleanup EXIT
-trap "exit 143" TERM
-trap "exit 130" INT
 for _ in $(seq 200); do
   [ -s "$tmp/display" ] && break
   if ! kill -0 "$xvfb" 2>/dev/null; then
@@ -28,6 +26,14 @@ if [ ! -s "$tmp/display" ]; then
 fi
 export DISPLAY=":$(head -n 1 "$tmp/display")"
 set +e
-"$@"
+# The command runs as a child so that a TERM or INT (timeout, Ctrl-C) reaches it too before the server goes.
+"$@" &
+child=$!
+trap 'kill -TERM "$child" 2>/dev/null' TERM INT
+wait "$child"
 status=$?
+while kill -0 "$child" 2>/dev/null; do
+  wait "$child"
+  status=$?
+done
 exit $status

@@ -391,7 +391,7 @@ void Viewer::draw_ui() {
     for (auto it = records_.rbegin(); it != records_.rend() && n < 30; ++it, ++n) sum += it->wall_ms;
     fps = n > 0 && sum > 0 ? 1000.0 * n / sum : 0;
   }
-  ImGui::Text("%.2f frames/s   %d spp   frame %u", fps, renderer_->samples(), frame_);
+  ImGui::Text("%.2f frames/s   %d spp   state %u", fps, renderer_->samples(), frame_);
   ImGui::Text("%s, %s", ctx_->device_name().c_str(),
               mode_ == CameraMode::Fly ? "fly (Tab: orbit)" : "orbit (Tab: fly)");
   const std::vector<std::string> compiling = ctx_->kernels().compiling();
@@ -447,12 +447,14 @@ void Viewer::draw_ui() {
       }
     }
     ImGui::Dummy(size);
-    ImGui::Text("top of the graph: %.1f ms", top);
+    ImGui::Text("top of the graph: %.1f ms; ms per frame, mean of the last %zu:", top, graph_.size());
     for (size_t gi = 0; gi < groups.size(); ++gi) {
-      const double last =
-          graph_.empty() || !graph_.back().count(groups[gi]) ? 0 : graph_.back().at(groups[gi]);
+      double sum = 0;
+      for (const auto& f : graph_)
+        if (auto it = f.find(groups[gi]); it != f.end()) sum += it->second;
+      const double mean = graph_.empty() ? 0 : sum / double(graph_.size());
       ImGui::TextColored(ImGui::ColorConvertU32ToFloat4(colour(gi)), "%-16s %8.2f ms", groups[gi].c_str(),
-                         last);
+                         mean);
     }
   }
   if (ImGui::CollapsingHeader("Memory", ImGuiTreeNodeFlags_DefaultOpen)) {
