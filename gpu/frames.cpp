@@ -167,6 +167,16 @@ void FrameRing::finish() {
   }
 }
 
+void FrameRing::discard() {
+  for (auto& s : slots_) {
+    if (!s->pending) continue;
+    HAZE_VK(vkWaitForFences(ctx_.device(), 1, &s->fence, VK_TRUE, UINT64_MAX));
+    ctx_.untrack_in_flight(s->fence);
+    s->pending = false;
+    s->done.clear();
+  }
+}
+
 bool FrameRing::would_wait() const {
   const Slot& s = *slots_[next_];
   return s.pending && vkGetFenceStatus(ctx_.device(), s.fence) != VK_SUCCESS;

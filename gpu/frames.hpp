@@ -50,6 +50,9 @@ class FrameRing {
   void poll();
   // Waits for every frame in flight and runs their completions.
   void finish();
+  // Waits for every frame in flight and drops their completions and timings (a run that failed: what they
+  // would deliver is no longer wanted, and may refer to what the failure unwound).
+  void discard();
   // Whether the next begin() would wait (its slot's frame is still running).
   bool would_wait() const;
 

@@ -99,7 +99,10 @@ Renderer::Renderer(gpu::Context& ctx, const scene::Scene& s, uint32_t frame, con
 }
 
 Renderer::~Renderer() {
-  ring_.reset();  // its frames finish (and their completions run) while everything they use exists
+  // Its frames finish while everything they use exists; what was waiting for them is dropped (the callers'
+  // callbacks may be gone: finish() or resolve() is how results are taken).
+  ring_->discard();
+  ring_.reset();
 }
 
 gpu::Kernel Renderer::kernel(gpu::KernelDecl decl) {
@@ -289,6 +292,10 @@ const std::map<std::string, PassStats>& Renderer::pass_stats() const {
 
 void Renderer::finish() {
   ring_->finish();
+}
+
+void Renderer::discard() {
+  ring_->discard();
 }
 
 bool Renderer::ready() const {

@@ -114,6 +114,8 @@ class Renderer {
   void resolve_async(std::function<void(Image)> done);
   // Waits for this renderer's submissions in flight and runs what waits for them (timings, images).
   void finish();
+  // Waits for them and drops what waits for them (a failed run; also on destruction).
+  void discard();
   // Raw per-pixel sums (ACC_STRIDE floats per pixel) for tests.
   std::vector<float> accum() const;
 

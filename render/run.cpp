@@ -89,35 +89,42 @@ RunSummary render_frames(gpu::Context& ctx, const scene::Scene& s, int first, in
     out.non_finite += img.non_finite;
     out.clamped_squares += img.clamped_squares;
   };
-  for (int f = first; f <= last; ++f) {
-    auto t0 = clock::now();
-    scene::Scene fs = use_frame(ctx, r, s, f, f == first);
-    if (f == first) {
-      gpu_seen = total_gpu_ms(*r);
-      const auto& passes = r->pass_stats_so_far();
-      trace_seen = passes.count("trace") ? passes.at("trace").ms.size() : 0;
-    }
-    for (const auto& n : r->notes())
-      if (std::find(out.notes.begin(), out.notes.end(), n) == out.notes.end()) {
-        if (loop.on_note) loop.on_note(n);
-        out.notes.push_back(n);
+  // A frame that fails leaves earlier frames' images undelivered: they are dropped with the run (their
+  // callbacks refer to this function's locals).
+  try {
+    for (int f = first; f <= last; ++f) {
+      auto t0 = clock::now();
+      scene::Scene fs = use_frame(ctx, r, s, f, f == first);
+      if (f == first) {
+        gpu_seen = total_gpu_ms(*r);
+        const auto& passes = r->pass_stats_so_far();
+        trace_seen = passes.count("trace") ? passes.at("trace").ms.size() : 0;
       }
-    auto t1 = clock::now();
-    const double fsetup = std::chrono::duration<double>(t1 - t0).count();
-    out.setup_s += fsetup;
-    if (loop.on_frame_start) loop.on_frame_start(f, first, last);
-    if (fs.render.time_budget_s > 0) {
-      // One sample at a time until the budget is spent (at least one); two are in flight at most.
-      const auto until = t1 + std::chrono::duration_cast<clock::duration>(
-                                  std::chrono::duration<double>(fs.render.time_budget_s));
-      do r->add_samples(1);
-      while (clock::now() < until);
-    } else {
-      r->add_samples(fs.render.spp, loop.progress);
+      for (const auto& n : r->notes())
+        if (std::find(out.notes.begin(), out.notes.end(), n) == out.notes.end()) {
+          if (loop.on_note) loop.on_note(n);
+          out.notes.push_back(n);
+        }
+      auto t1 = clock::now();
+      const double fsetup = std::chrono::duration<double>(t1 - t0).count();
+      out.setup_s += fsetup;
+      if (loop.on_frame_start) loop.on_frame_start(f, first, last);
+      if (fs.render.time_budget_s > 0) {
+        // One sample at a time until the budget is spent (at least one); two are in flight at most.
+        const auto until = t1 + std::chrono::duration_cast<clock::duration>(
+                                    std::chrono::duration<double>(fs.render.time_budget_s));
+        do r->add_samples(1);
+        while (clock::now() < until);
+      } else {
+        r->add_samples(fs.render.spp, loop.progress);
+      }
+      r->resolve_async([&arrived, f, fsetup, t1](Image img) { arrived(f, fsetup, t1, std::move(img)); });
     }
-    r->resolve_async([&arrived, f, fsetup, t1](Image img) { arrived(f, fsetup, t1, std::move(img)); });
+    r->finish();
+  } catch (...) {
+    if (r) r->discard();
+    throw;
   }
-  r->finish();
   // What the estimator dropped or clamped, said once for the run (per frame in per_frame).
   auto say = [&](const std::string& n) {
     if (loop.on_note) loop.on_note(n);

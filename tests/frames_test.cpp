@@ -70,5 +70,26 @@ TEST(FrameRing, HostAccessWaitsForTheFramesInFlight) {
   EXPECT_EQ(ctx().validation_messages(), 0u);
 }
 
+// A failed run drops what waits for its frames: discard() waits for them but runs no completion (they may
+// refer to what the failure unwound; `haze render` of a sequence whose second frame fails crashed on the
+// first frame's). Injected defect caught: discard() as finish() (the completion ran).
+TEST(FrameRing, DiscardWaitsAndDropsCompletions) {
+  gpu::FrameRing ring(ctx(), "test", 2, 4);
+  gpu::Buffer b(ctx(), "discard test", "test", 1 << 20);
+  int ran = 0;
+  for (int f = 0; f < 2; ++f) {
+    VkCommandBuffer cmd = ring.begin();
+    b.fill(cmd, 5u);
+    ring.on_complete([&ran] { ++ran; });
+    ring.submit();
+  }
+  ring.discard();
+  EXPECT_EQ(ring.in_flight(), 0u);
+  ring.finish();
+  EXPECT_EQ(ran, 0);
+  EXPECT_EQ(b.download_vector<uint32_t>()[0], 5u);
+  EXPECT_EQ(ctx().validation_messages(), 0u);
+}
+
 }  // namespace
 }  // namespace haze
