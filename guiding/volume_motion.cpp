@@ -25,21 +25,23 @@ VolumeMotion::VolumeMotion(gpu::Context& ctx, uint32_t width, uint32_t height)
   output_ = gpu::Buffer(ctx, "volume motion", "volume motion", pixels * 16,
                         "4 x f32 per pixel (motion xy, distance change, landed)");
   // Both kernels of the usual case (no moving media) up front, so that the first frame does not pay.
-  kernel(false, false);
-  kernel(true, false);
+  kernel(false, 0);
+  kernel(true, 0);
 }
 
 VolumeMotion::~VolumeMotion() = default;
 
-const gpu::Kernel& VolumeMotion::kernel(bool resolve, bool moving) {
+const gpu::Kernel& VolumeMotion::kernel(bool resolve, int moving) {
   gpu::Kernel& k = kernels_[resolve][moving];
   if (!k.valid()) {
     const uint64_t pixels = uint64_t(width_) * height_;
     gpu::KernelDecl d("guiding/volume_motion.comp");
+    if (moving == 2) d.define("HAZE_VELOCITY");
     d.buffer("scene", sizeof(glsl::GpuScene))
         .buffer("prev_depth", pixels * 4)
         .buffer("g_normal", pixels * 16, 16);
     if (moving) d.buffer("media_motion", sizeof(glsl::MediumMotion), sizeof(glsl::MediumMotion));
+    if (moving == 2) d.buffer("grids", 8, 8);
     d.buffer("keys", pixels * 8)
         .buffer("motion", pixels * 16)
         .push(sizeof(Push))
@@ -60,7 +62,7 @@ void VolumeMotion::run(VkCommandBuffer cmd, gpu::Timer* timer, const VolumeMotio
         fmt::format("volume motion: previous depth buffer '{}' ({} bytes) does not hold {} pixels of "
                     "stride {} with the depth at {}",
                     in.prev_depth->name(), in.prev_depth->size(), pixels, in.depth_stride, in.depth_offset));
-  const bool moving = in.media_count > 0;
+  const int moving = in.media_count == 0 ? 0 : in.velocity_grids ? 2 : 1;
   if (moving && (!in.media || in.media->size() < in.media_count * sizeof(glsl::MediumMotion)))
     throw gpu::Error(
         fmt::format("volume motion: {} moving media but their buffer holds fewer", in.media_count));
@@ -68,6 +70,7 @@ void VolumeMotion::run(VkCommandBuffer cmd, gpu::Timer* timer, const VolumeMotio
   b.set("scene", *in.scene).set("prev_depth", *in.prev_depth).set("g_normal", *in.g_normal);
   b.set("keys", keys_).set("motion", output_);
   if (moving) b.set("media_motion", *in.media);
+  if (moving == 2) b.set("grids", *in.velocity_grids);
   const Push push{glm::uvec2(width_, height_), in.depth_stride, in.depth_offset, in.media_count};
   const uint32_t gx = gpu::div_up(width_, 8), gy = gpu::div_up(height_, 8);
 

@@ -15,7 +15,7 @@
 
 namespace haze::guiding {
 
-static_assert(sizeof(glsl::MediumMotion) == 6 * 16);
+static_assert(sizeof(glsl::MediumMotion) == 23 * 16);
 
 struct VolumeMotionInputs {
   const gpu::Buffer* scene = nullptr;  // GpuScene: cam_* this frame's camera, prev_cam_* the previous one's
@@ -28,6 +28,9 @@ struct VolumeMotionInputs {
   // glsl::MediumMotion per medium that moved, `media_count` of them; nullptr (with count 0): none moved.
   const gpu::Buffer* media = nullptr;
   uint32_t media_count = 0;
+  // The velocity grids' address table (shaders/volume/grids.glsl) that MediumMotion::velocity indexes;
+  // nullptr: no medium has a velocity (the pass is then compiled without the velocity code).
+  const gpu::Buffer* velocity_grids = nullptr;
 };
 
 class VolumeMotion {
@@ -54,9 +57,9 @@ class VolumeMotion {
   gpu::Buffer keys_;    // per pixel: (distance bits << 32 | source pixel) of the nearest point, atomicMin
   gpu::Buffer output_;  // vec4 per pixel
   double pipeline_ms_ = 0;
-  // Splat and resolve, without and with moving media.
-  const gpu::Kernel& kernel(bool resolve, bool moving);
-  gpu::Kernel kernels_[2][2];
+  // Splat and resolve; no moving media, moving media, moving media with velocity grids.
+  const gpu::Kernel& kernel(bool resolve, int moving);
+  gpu::Kernel kernels_[2][3];
 };
 
 }  // namespace haze::guiding
