@@ -16,6 +16,7 @@
 
 #include "bench/bench_util.hpp"
 #include "bench/guiding_bench.hpp"
+#include "bench/shafts_bench.hpp"
 #include "bench/volume_repr_bench.hpp"
 #include "denoise/svgf.hpp"
 #include "render/renderer.hpp"
@@ -422,14 +423,36 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
     add("kernel share of cold 1st frame", f["cold"]["pipeline_share_of_first_frame"],
         "compiling permutations and creating pipelines / the cold first frame");
   }
+  if (j.contains("shafts")) {
+    const auto& sh = j["shafts"];
+    const auto& c = sh["contrast_error_from_frame_4"];
+    if (!c.empty()) {
+      add("shafts contrast error f>=4", c["mean"],
+          fmt::format("sheet contrast of the denoised volume term / the reference's - 1, frames 4.. "
+                      "({:+.3f}..{:+.3f})",
+                      c["min"].get<double>(), c["max"].get<double>()));
+      rows.back()["min"] = c["min"];
+      rows.back()["max"] = c["max"];
+    }
+    for (const char* inst : {"surface", "volume"}) {
+      const auto& m = sh[fmt::format("mean_error_{}", inst)];
+      add(fmt::format("shafts mean error {}", inst), m["mean"],
+          fmt::format("denoised {} mean luminance / the reference's - 1, over frames ({:+.3f}..{:+.3f})",
+                      inst, m["min"].get<double>(), m["max"].get<double>()));
+      rows.back()["min"] = m["min"];
+      rows.back()["max"] = m["max"];
+    }
+    add("shafts change ratio volume", sh["temporal"]["volume"]["change_ratio"],
+        "frame-to-frame change of the denoised volume term / the reference's (1: no flicker, no lag)");
+  }
   return rows;
 }
 
 }  // namespace
 
 const std::vector<std::string>& part_names() {
-  static const std::vector<std::string> names = {"first_frame", "passes",  "bvh",
-                                                 "svgf",        "guiding", "volume_repr"};
+  static const std::vector<std::string> names = {"first_frame", "passes",      "bvh",   "svgf",
+                                                 "guiding",     "volume_repr", "shafts"};
   return names;
 }
 
@@ -458,6 +481,23 @@ int run(const Options& o, const gpu::ContextOptions& co) {
   for (const std::string& sz : split(o.denoise_sizes, ',')) parse_size(sz, "--denoise-sizes");
   if (o.denoise_sizes.empty()) throw std::runtime_error("--denoise-sizes: expected WxH[,WxH...]");
   auto [gw, gh] = parse_size(o.guiding_size, "--guiding-size");
+  auto [shw, shh] = parse_size(o.shafts_size, "--shafts-size");
+  if (o.shafts_frames < 1)
+    throw std::runtime_error(fmt::format("--shafts-frames {}: must be >= 1", o.shafts_frames));
+  json set_patch;
+  if (!o.shafts_set.empty()) {
+    try {
+      set_patch = json::parse(o.shafts_set);
+    } catch (const std::exception& e) {
+      throw std::runtime_error(
+          fmt::format("--shafts-set: not JSON ({}); expected an object such as "
+                      "'{{\"denoise\": {{\"volume\": {{\"iterations\": 3}}}}}}'",
+                      e.what()));
+    }
+    if (!set_patch.is_object()) throw std::runtime_error("--shafts-set: expected a JSON object");
+  }
+  if (o.shafts_reference_spp < 1)
+    throw std::runtime_error(fmt::format("--shafts-reference-spp {}: must be >= 1", o.shafts_reference_spp));
   if (o.spp < 1) throw std::runtime_error(fmt::format("--spp {}: must be >= 1", o.spp));
 
   gpu::Context ctx(co);
@@ -489,6 +529,17 @@ int run(const Options& o, const gpu::ContextOptions& co) {
     VolumeReprOptions vo;
     vo.invocations = uint32_t(w) * uint32_t(h);
     j["volume_repr"] = bench_volume_repr(ctx, vo);
+  }
+  if (wants("shafts")) {
+    ShaftsOptions so;
+    so.width = shw;
+    so.height = shh;
+    so.frames = o.shafts_frames;
+    so.reference_spp = o.shafts_reference_spp;
+    so.reference_dir = o.reference_dir;
+    so.images_dir = o.images_dir;
+    so.set = set_patch;
+    j["shafts"] = bench_shafts(ctx, so);
   }
   const std::vector<std::string> svgf_sizes = split(o.denoise_sizes, ',');
   const json rows = summarize(j, svgf_sizes);
@@ -563,6 +614,7 @@ int run(const Options& o, const gpu::ContextOptions& co) {
       }
     if (j.contains("guiding")) print_guiding(j["guiding"]);
     if (j.contains("volume_repr")) print_volume_repr(j["volume_repr"]);
+    if (j.contains("shafts")) print_shafts(j["shafts"]);
   }
   if (messages > 0) {
     fmt::print(stderr, "haze: {} Vulkan validation messages\n", messages);
