@@ -36,7 +36,7 @@ const std::vector<Layer>& exr_layers() {
       {"surface", {"R", "G", "B"}, out(OUT_SURF)},
       {"surface_demod", {"R", "G", "B"}, out(OUT_DEMOD)},
       {"surface_demod_m2", {"R", "G", "B"}, out(OUT_DEMOD_M2)},
-      {"surface_emission", {"R", "G", "B"}, out(OUT_EMIT)},
+      {"surface_emission", {"R", "G", "B"}, out(OUT_EMIT), [](const Image& img) { return img.surface_emission; }},
       {"transmittance", {"Y"}, out(OUT_T)},
       {"variance", {"R", "G", "B"}, out(OUT_VAR)},
       {"depth", {"Z"}, gbuf(G_DEPTH)},

@@ -139,11 +139,15 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
         gpu::Buffer(ctx_, "frame counters", "per-frame temporaries", glsl::COUNTERS * 4, "u32 COUNT_*");
   scene_buf_.upload(&g, sizeof(g));
 
-  // The frame's layers, remade only when the size changes.
+  // The frame's layers, remade only when the size changes or emitters come or go: the camera hits' emission
+  // (acc_emit, out_emit) is a layer of its own only in scenes with emissive surfaces.
   const uint64_t pixels = uint64_t(s.render.width) * s.render.height;
-  if (accum_.pixels() != pixels) {
-    accum_ = gpu::PixelLayers(ctx_, "accumulation", "per-frame temporaries", pixels, kAccumulationLayers);
-    out_ = gpu::PixelLayers(ctx_, "resolved", "outputs", pixels, kResolvedLayers);
+  const bool emission = !surfaces_.geometry().emitters.empty();
+  if (accum_.pixels() != pixels || accum_.has("acc_emit") != emission) {
+    accum_ = gpu::PixelLayers(ctx_, "accumulation", "per-frame temporaries", pixels, kAccumulationLayers,
+                              emission ? std::vector<std::string>{} : std::vector<std::string>{"acc_emit"});
+    out_ = gpu::PixelLayers(ctx_, "resolved", "outputs", pixels, kResolvedLayers,
+                            emission ? std::vector<std::string>{} : std::vector<std::string>{"out_emit"});
     gbuffer_ = gpu::PixelLayers(ctx_, "g-buffer", "per-frame temporaries", pixels, kGBufferLayers);
     prev_gbuffer_ =
         gpu::PixelLayers(ctx_, "previous g-buffer", "previous-frame data", pixels, kPrevGBufferLayers);
@@ -177,6 +181,7 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   // The surface instance on the demodulated surface signal; the volume instance on the volume signal with
   // albedo 1 and the volume motion vectors. Each keeps its history across frames of the same size.
   keep_svgf(svgf_surface_, "surface", surfaces_.any() && s.denoise.surface.enabled, s.denoise.surface, true);
+  if (svgf_surface_) svgf_surface_->set_emission(emission);
   keep_svgf(svgf_volume_, "volume", media_.any() && s.denoise.volume.enabled, s.denoise.volume, false);
   if (svgf_surface_ || svgf_volume_)
     tonemap_ = kernel(tonemap_decl(pixels, bool(svgf_surface_), bool(svgf_volume_)));
@@ -257,6 +262,13 @@ void Renderer::start_frame(VkCommandBuffer cmd) {
     in.prev_depth = &out_[layer_of(glsl::OUT_VPDEPTH)];
     in.depth_stride = 4;
     in.depth_offset = glsl::OUT_VPDEPTH % 4;
+    if (svgf_volume_ && svgf_volume_->geometry_depth()) {
+      // The volume instance's own geometry: the virtual point depth it accumulated over its history, far less
+      // noisy than the last frame's alone.
+      in.prev_depth = svgf_volume_->geometry_depth();
+      in.depth_stride = 2;
+      in.depth_offset = 0;
+    }
     in.g_normal = &gbuffer_[layer_of(glsl::G_MOTION)];
     in.media = media_.motion();
     in.media_count = media_.moving();
@@ -317,9 +329,11 @@ Image Renderer::resolve() {
     if (svgf_surface_) {
       in.colour = &out_[layer_of(glsl::OUT_DEMOD)];
       in.colour_offset = glsl::OUT_DEMOD % 4;
-      in.emission = &out_[layer_of(glsl::OUT_EMIT)];  // added back after remodulation
-      in.emission_stride = 4;
-      in.emission_offset = glsl::OUT_EMIT % 4;
+      if (out_.has("out_emit")) {
+        in.emission = &out_[layer_of(glsl::OUT_EMIT)];  // added back after remodulation
+        in.emission_stride = 4;
+        in.emission_offset = glsl::OUT_EMIT % 4;
+      }
       svgf_surface_->run(cmd, timer_.get(), in);
     }
     if (svgf_volume_) {
@@ -331,6 +345,9 @@ Image Renderer::resolve() {
         in.motion_stride = 4;
         in.motion_offset = 0;
       }
+      in.depth = &vol;  // used by geometry "virtual_points"
+      in.depth_stride = 4;
+      in.depth_offset = glsl::OUT_VPDEPTH % 4;
       svgf_volume_->run(cmd, timer_.get(), in);
     }
     timer_->begin(cmd, "tonemap");
@@ -348,6 +365,7 @@ Image Renderer::resolve() {
   img.height = r.height;
   img.samples = samples_;
   img.data = out_.download();
+  img.surface_emission = out_.has("out_emit");
   img.ldr = ldr_.download_vector<uint32_t>();
   img.gbuffer = gbuffer_.download();
   if (svgf_surface_) img.surface_denoised = svgf_surface_->download();
