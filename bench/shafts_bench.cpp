@@ -116,6 +116,26 @@ double sheet_contrast(const std::vector<float>& Y, const std::vector<int8_t>& ma
   return (in / double(n_in)) / (out / double(n_out));
 }
 
+double block_ratio(const std::vector<float>& Y, int W, int H) {
+  double on = 0, off = 0;
+  size_t n_on = 0, n_off = 0;
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      const float v = Y[size_t(y) * W + x];
+      if (x > 0) {
+        const double d = std::abs(v - Y[size_t(y) * W + x - 1]);
+        (x % 8 == 0 ? on : off) += d;
+        ++(x % 8 == 0 ? n_on : n_off);
+      }
+      if (y > 0) {
+        const double d = std::abs(v - Y[size_t(y - 1) * W + x]);
+        (y % 8 == 0 ? on : off) += d;
+        ++(y % 8 == 0 ? n_on : n_off);
+      }
+    }
+  return n_on && n_off && off > 0 ? (on / double(n_on)) / (off / double(n_off)) : 1.0;
+}
+
 std::vector<float> luminance_of(const std::vector<glm::vec3>& rgb) {
   std::vector<float> Y(rgb.size());
   for (size_t p = 0; p < rgb.size(); ++p) Y[p] = glsl::luminance(rgb[p]);
@@ -281,7 +301,11 @@ json bench_shafts(gpu::Context& ctx, const ShaftsOptions& o) {
                  {"volume", m_vol},
                  {"surface_noisy", mean_luminance(n_surf) / mean_luminance(r_surf) - 1},
                  {"volume_noisy", mean_luminance(n_vol) / mean_luminance(r_vol) - 1}}},
-               {"volume_history", hist}};
+               {"volume_history", hist},
+               {"block_ratio",
+                {{"volume", block_ratio(luminance_of(d_vol), W, H)},
+                 {"composite", block_ratio(luminance_of(d_L), W, H)},
+                 {"volume_reference", block_ratio(Y_ref, W, H)}}}};
     frames.push_back(fr);
     if (f >= 4) contrast_after4.push_back(c_dn / c_ref - 1);
     mean_surface.push_back(m_surf);
@@ -360,6 +384,11 @@ void print_shafts(const json& j) {
       "  (denoised/noisy; contrast: the sheets' contrast in the denoised volume term and composite against "
       "the reference's; mean: denoised surface and volume against the reference's; hist: volume history "
       "where the reprojection is wrong / right)\n");
+  const auto& b0 = j["per_frame"][0]["block_ratio"];
+  fmt::print(
+      "  8x8 block pattern at frame 0 (steps across the 8x8 grid / other steps): denoised volume {:.3f}, "
+      "composite {:.3f}, reference volume {:.3f}\n",
+      b0["volume"].get<double>(), b0["composite"].get<double>(), b0["volume_reference"].get<double>());
   const auto& t = j["temporal"];
   fmt::print(
       "  temporal stability, change ratio (1: as much change as the reference): composite {:.3f}, volume "

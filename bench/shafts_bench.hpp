@@ -40,6 +40,11 @@ std::vector<int8_t> sheet_masks(const std::vector<float>& Y, int width, int heig
 // Mean luminance inside the sheets over the mean between them.
 double sheet_contrast(const std::vector<float>& Y, const std::vector<int8_t>& mask);
 
+// The 8x8 block pattern of an image: the mean luminance step across pixel pairs that straddle a boundary of
+// the 8x8 grid (x or y a multiple of 8) over the mean step between the other neighbours; about 1 without
+// blocks.
+double block_ratio(const std::vector<float>& Y, int width, int height);
+
 // Luminance planes of an image's layers.
 std::vector<float> luminance_of(const std::vector<glm::vec3>& rgb);
 

@@ -35,7 +35,7 @@ struct SvgfParams {
   float spatial_bias = 8.f, spatial_falloff = 3.f;
   // Filter.
   int iterations = 5;
-  std::string kernel = "5x5";  // 5x5 | subsampled
+  std::string kernel = "5x5";            // 5x5 | subsampled
   std::string normalization = "gather";  // gather (SVGF) | splat (energy-conserving)
   // What sigma steers the luminance term: one frame's sample (SVGF) or the accumulated estimate's.
   std::string filter_sigma = "sample";  // sample (SVGF) | estimate
@@ -101,9 +101,10 @@ void reflect(V& v, SvgfParams& p) {
   v.field("firefly_low", p.firefly_low, Range{0, 1}, "lower firefly percentile");
   v.field("firefly_up", p.firefly_up, Range{0, 1}, "upper firefly percentile");
   v.field("firefly_max", p.firefly_max, Range{0, 6.5e4}, "hard clamp of the input luminance");
-  v.field("geometry", p.geometry, Choices{"surface", "virtual_points"},
-          "what reprojection tests and edge stopping compare: the surface G-buffer's depth and normals, or the "
-          "virtual point depth of the signal (and its gradient; volume instance only)");
+  v.field(
+      "geometry", p.geometry, Choices{"surface", "virtual_points"},
+      "what reprojection tests and edge stopping compare: the surface G-buffer's depth and normals, or the "
+      "virtual point depth of the signal (and its gradient; volume instance only)");
   v.field("normal_threshold", p.normal_threshold, Range{0, 180}, "reprojection: max normal change, degrees");
   v.field("depth_tolerance", p.depth_tolerance, Range::at_least(0),
           "reprojection: |z - z'| <= tolerance * max(z, z')");
@@ -114,14 +115,16 @@ void reflect(V& v, SvgfParams& p) {
   v.field("spatial_falloff", p.spatial_falloff, Range::at_least(0), "f in beta = clamp(b / n^f, 0, 1)");
   v.field("iterations", p.iterations, Range{0, 10}, "filter iterations (gap 2^i)");
   v.field("kernel", p.kernel, Choices{"5x5", "subsampled"}, "5x5 a-trous or the 6-tap subsampled pattern");
-  v.field("normalization", p.normalization, Choices{"gather", "splat"},
-          "filter normalization (adaptive mode): gather divides each output by its weights' sum (SVGF); splat "
-          "divides each input by the sum of the symmetric weights it gives away, which conserves the "
-          "signal's sum exactly (one more pass per iteration)");
-  v.field("filter_sigma", p.filter_sigma, Choices{"sample", "estimate"},
-          "adaptive mode: the luminance term's sigma is that of one frame's sample (SVGF) or of the accumulated "
-          "estimate (the sample variance over the frames the colour averages), which stops at real edges once "
-          "the history is long");
+  v.field(
+      "normalization", p.normalization, Choices{"gather", "splat"},
+      "filter normalization (adaptive mode): gather divides each output by its weights' sum (SVGF); splat "
+      "divides each input by the sum of the symmetric weights it gives away, which conserves the "
+      "signal's sum exactly (one more pass per iteration)");
+  v.field(
+      "filter_sigma", p.filter_sigma, Choices{"sample", "estimate"},
+      "adaptive mode: the luminance term's sigma is that of one frame's sample (SVGF) or of the accumulated "
+      "estimate (the sample variance over the frames the colour averages), which stops at real edges once "
+      "the history is long");
   v.field("phi_luminance", p.phi_luminance, Range::at_least(0), "luminance edge-stopping scale");
   v.field("phi_depth", p.phi_depth, Range::at_least(0), "depth edge-stopping scale");
   v.field("phi_normal", p.phi_normal, Range{0, 180}, "normal edge-stopping angle, degrees");

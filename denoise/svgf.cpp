@@ -30,7 +30,8 @@ glsl::SvgfGpuParams gpu_params(const SvgfParams& p, uint32_t W, uint32_t H, bool
   g.filter_phi = glm::vec4(p.phi_luminance, p.phi_depth, std::min(cos_deg(p.phi_normal), 0.9999f), 1e-4f);
   g.filter_fade = glm::vec4(p.zbias_normal, p.zbias_depth, 0, 0);
   g.taa = glm::vec4(p.taa_blend, p.taa_clamp == "variance" ? 1.f : 0.f, p.taa_gamma, 0);
-  g.variance_scale = glm::vec4(p.filter_sigma == "estimate" ? 1.f : 0.f, std::max(1.f - p.accumulate, 1e-3f), 0, 0);
+  g.variance_scale =
+      glm::vec4(p.filter_sigma == "estimate" ? 1.f : 0.f, std::max(1.f - p.accumulate, 1e-3f), 0, 0);
   if (p.mode == "classic") {
     // Schied et al. 2017 as in Falcor's SVGF: alpha 0.2, phi_l 4, phi_z 1, normal exponent 128.
     g.accumulate = glm::vec4(0.8f, 32.f, 0, 0);
@@ -73,11 +74,12 @@ void Svgf::make_geometry_buffers() {
   }
   if (geo_.valid()) return;
   const uint64_t pixels = uint64_t(width_) * height_;
-  geo_ = gpu::Buffer(ctx_, fmt::format("svgf.{} geometry", name_), fmt::format("svgf.{} per-frame temporaries", name_),
-                     pixels * 8, "f32 virtual point depth, 2 x f16 its gradient");
-  prev_geo_ = gpu::Buffer(ctx_, fmt::format("svgf.{} previous geometry", name_),
-                          fmt::format("svgf.{} previous-frame data", name_), pixels * 4,
-                          "f32 virtual point depth");
+  geo_ = gpu::Buffer(ctx_, fmt::format("svgf.{} geometry", name_),
+                     fmt::format("svgf.{} per-frame temporaries", name_), pixels * 8,
+                     "f32 virtual point depth, 2 x f16 its gradient");
+  prev_geo_ =
+      gpu::Buffer(ctx_, fmt::format("svgf.{} previous geometry", name_),
+                  fmt::format("svgf.{} previous-frame data", name_), pixels * 4, "f32 virtual point depth");
   geo_.fill_zero();
   prev_geo_.fill_zero();
 }
@@ -99,7 +101,8 @@ void Svgf::create_kernels() {
   const bool own = own_geometry();
   auto gbuffer = [&](gpu::KernelDecl& d, const char* prefix) {
     if (own) {
-      if (!d.defined("SVGF_OWN_GEOMETRY")) d.define("SVGF_OWN_GEOMETRY").buffer("geo", pixels * 8).buffer("prev_geo", pixels * 4);
+      if (!d.defined("SVGF_OWN_GEOMETRY"))
+        d.define("SVGF_OWN_GEOMETRY").buffer("geo", pixels * 8).buffer("prev_geo", pixels * 4);
       return;
     }
     for (const char* layer : {"g_depth", "g_normal", "g_albedo"})
@@ -173,8 +176,9 @@ void Svgf::set_emission(bool emission) {
 }
 
 void Svgf::set_params(const SvgfParams& params) {
-  bool rebuild = !accumulate_pass_.valid() || params.mode != params_.mode || params.kernel != params_.kernel ||
-                 params.geometry != params_.geometry || params.normalization != params_.normalization;
+  bool rebuild = !accumulate_pass_.valid() || params.mode != params_.mode ||
+                 params.kernel != params_.kernel || params.geometry != params_.geometry ||
+                 params.normalization != params_.normalization;
   if (params.geometry != params_.geometry) has_history_ = false;  // the history's tests change meaning
   params_ = params;
   make_geometry_buffers();
@@ -182,8 +186,8 @@ void Svgf::set_params(const SvgfParams& params) {
     weight_sum_ = gpu::Buffer();
   else if (!weight_sum_.valid())
     weight_sum_ = gpu::Buffer(ctx_, fmt::format("svgf.{} weight sums", name_),
-                              fmt::format("svgf.{} per-frame temporaries", name_), uint64_t(width_) * height_ * 4,
-                              "f32 per pixel");
+                              fmt::format("svgf.{} per-frame temporaries", name_),
+                              uint64_t(width_) * height_ * 4, "f32 per pixel");
   const glm::uvec4 layout = gpu_.layout_in, flags = gpu_.flags;
   gpu_ = gpu_params(params_, width_, height_, remodulate_);
   gpu_.layout_in = layout;

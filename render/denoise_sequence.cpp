@@ -217,11 +217,13 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
               gpu::Buffer(ctx, "input volume motion", "per-frame temporaries", pixels * 8, "2 x f32");
         if (settings.denoise.volume.geometry == "virtual_points") {
           if (!has_layer(img, "virtual_point_depth.Z"))
-            throw Error(fmt::format("{}: no virtual_point_depth.Z layer, which denoise.volume.geometry "
-                                    "\"virtual_points\" reads; use frames haze rendered, or --set "
-                                    "denoise.volume.geometry=surface",
-                                    file));
-          vp_depth = gpu::Buffer(ctx, "input virtual point depth", "per-frame temporaries", pixels * 4, "f32");
+            throw Error(
+                fmt::format("{}: no virtual_point_depth.Z layer, which denoise.volume.geometry "
+                            "\"virtual_points\" reads; use frames haze rendered, or --set "
+                            "denoise.volume.geometry=surface",
+                            file));
+          vp_depth =
+              gpu::Buffer(ctx, "input virtual point depth", "per-frame temporaries", pixels * 4, "f32");
         }
       }
     } else if (img.width != W || img.height != H) {
@@ -232,12 +234,14 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
     // The emission is added back where the sequence has it (scenes with emissive surfaces), in every frame.
     if (i == 0 && !in.emission.empty()) {
       svgf->set_emission(true);
-      emission = gpu::Buffer(ctx, "input emission", "per-frame temporaries", in.emission.size() * 4, "3 x f32");
+      emission =
+          gpu::Buffer(ctx, "input emission", "per-frame temporaries", in.emission.size() * 4, "3 x f32");
     }
     if (svgf->emission() != !in.emission.empty())
-      throw Error(fmt::format("{}: {} surface_emission.R/G/B layers; the first frame {}; a sequence has the same "
-                              "layers in every frame",
-                              file, in.emission.empty() ? "no" : "has", svgf->emission() ? "has them" : "does not"));
+      throw Error(
+          fmt::format("{}: {} surface_emission.R/G/B layers; the first frame {}; a sequence has the same "
+                      "layers in every frame",
+                      file, in.emission.empty() ? "no" : "has", svgf->emission() ? "has them" : "does not"));
     if (svgf_volume && !has_volume(img))
       throw Error(
           fmt::format("{}: no volume.R/G/B layers, which the first frame has; a sequence has the same "
@@ -254,9 +258,10 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
     if (volume_motion_used) volume_motion.upload(in.volume_motion);
     if (vp_depth.valid()) {
       if (in.vp_depth.empty())
-        throw Error(fmt::format("{}: no virtual_point_depth.Z layer, which the first frame has; a sequence has "
-                                "the same layers in every frame",
-                                file));
+        throw Error(
+            fmt::format("{}: no virtual_point_depth.Z layer, which the first frame has; a sequence has "
+                        "the same layers in every frame",
+                        file));
       vp_depth.upload(in.vp_depth);
     }
     gbuf.upload(in.gbuffer);
