@@ -391,8 +391,27 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
       rows.back()["max"] = r["max"];
     }
     const auto& v = j["guiding"]["volume_denoiser"];
-    add("motion surface/virtual pts", v["relmse_ratio_surface_motion_over_virtual_points"],
+    auto ratio = [&](const std::string& key, const json& r, const std::string& meaning) {
+      add(key, r["ratio_of_means"],
+          fmt::format("{} (ratio of means over seeds; per seed {:.2f}..{:.2f})", meaning,
+                      r["min"].get<double>(), r["max"].get<double>()));
+      rows.back()["min"] = r["min"];
+      rows.back()["max"] = r["max"];
+    };
+    ratio(
+        "motion surface/virtual pts", v["relmse_surface_motion_over_virtual_points"],
         "denoised volume relMSE on a panning shaft, surface / virtual-point motion; >1: virtual points win");
+    ratio("motion backward/virtual pts", v["relmse_backward_over_virtual_points"],
+          "the same, each pixel's own virtual point reprojected backward / projected forward; >1: forward "
+          "wins");
+    for (const auto& [key, label] : {std::pair<const char*, const char*>{"volume_denoiser", "panning shaft"},
+                                     {"volume_occluder", "shaft before a moving occluder"}}) {
+      ratio(fmt::format("geometry surface/vp {}", key == std::string("volume_denoiser") ? "pan" : "occluder"),
+            j["guiding"][key]["relmse_surface_geometry_over_virtual_points"],
+            fmt::format(
+                "denoised volume relMSE, {}: surface G-buffer / virtual points as the volume's geometry",
+                label));
+    }
     const auto& c = v["instances"];
     add("svgf.volume/surface time", c["volume_over_surface_time"],
         "GPU time per frame of the two SVGF instances");
@@ -436,14 +455,16 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
     }
     for (const char* inst : {"surface", "volume"}) {
       const auto& m = sh[fmt::format("mean_error_{}", inst)];
+      if (m.empty()) continue;
       add(fmt::format("shafts mean error {}", inst), m["mean"],
           fmt::format("denoised {} mean luminance / the reference's - 1, over frames ({:+.3f}..{:+.3f})",
                       inst, m["min"].get<double>(), m["max"].get<double>()));
       rows.back()["min"] = m["min"];
       rows.back()["max"] = m["max"];
     }
-    add("shafts change ratio volume", sh["temporal"]["volume"]["change_ratio"],
-        "frame-to-frame change of the denoised volume term / the reference's (1: no flicker, no lag)");
+    if (sh["temporal"]["volume"]["change_ratio"].is_number())
+      add("shafts change ratio volume", sh["temporal"]["volume"]["change_ratio"],
+          "frame-to-frame change of the denoised volume term / the reference's (1: no flicker, no lag)");
   }
   return rows;
 }

@@ -171,6 +171,19 @@ double mean_luminance(const std::vector<glm::vec3>& v) {
   return s / double(v.size());
 }
 
+// a / b where b > 0 and the quotient is finite, else null (a frame too small or too dark to say).
+json ratio(double a, double b) {
+  return b > 0 && std::isfinite(a / b) ? json(a / b) : json();
+}
+
+json minus_one(const json& r) {
+  return r.is_number() ? json(r.get<double>() - 1) : json();
+}
+
+double number_or_nan(const json& j) {
+  return j.is_number() ? j.get<double>() : std::nan("");
+}
+
 json summary_of(const std::vector<double>& v) {
   if (v.empty()) return json::object();
   const double mean = std::accumulate(v.begin(), v.end(), 0.0) / double(v.size());
@@ -220,7 +233,7 @@ json bench_shafts(gpu::Context& ctx, const ShaftsOptions& o) {
   for (const auto& [k, v] : ref_info["frames"].items())
     ref_error = std::max(ref_error, v.value("error_quantile", 0.0));
 
-  const bool vp_motion = s.denoise.volume_motion == "virtual_points";
+  const bool vp_motion = s.denoise.volume_motion != "surface";
   std::unique_ptr<render::Renderer> r;
   std::vector<std::vector<glm::vec3>> seq_comp, seq_vol, ref_comp, ref_vol;
   std::vector<float> prev_ref_Y;
@@ -245,7 +258,8 @@ json bench_shafts(gpu::Context& ctx, const ShaftsOptions& o) {
     const double c_ref = sheet_contrast(Y_ref, mask);
     const double c_dn = sheet_contrast(luminance_of(d_vol), mask);
     const double c_noisy = sheet_contrast(luminance_of(n_vol), mask);
-    const double c_comp = sheet_contrast(luminance_of(d_L), mask) / sheet_contrast(luminance_of(r_L), mask);
+    const json c_comp =
+        ratio(sheet_contrast(luminance_of(d_L), mask), sheet_contrast(luminance_of(r_L), mask));
     size_t in = 0, between = 0;
     for (int8_t m : mask) in += m > 0, between += m < 0;
 
@@ -276,8 +290,8 @@ json bench_shafts(gpu::Context& ctx, const ShaftsOptions& o) {
     }
     prev_ref_Y = Y_ref;
 
-    const double m_surf = mean_luminance(d_surf) / mean_luminance(r_surf) - 1;
-    const double m_vol = mean_luminance(d_vol) / mean_luminance(r_vol) - 1;
+    const json m_surf = minus_one(ratio(mean_luminance(d_surf), mean_luminance(r_surf)));
+    const json m_vol = minus_one(ratio(mean_luminance(d_vol), mean_luminance(r_vol)));
     json fr = {{"frame", f},
                {"relmse",
                 {{"composite", eval::relmse(channels(d_L), channels(r_L))},
@@ -291,25 +305,25 @@ json bench_shafts(gpu::Context& ctx, const ShaftsOptions& o) {
                  {"volume_noisy", eval::flip_ldr(channels(n_vol), channels(r_vol), W, H).mean}}},
                {"sheet_contrast",
                 {{"reference", c_ref},
-                 {"volume_over_reference", c_dn / c_ref},
-                 {"noisy_volume_over_reference", c_noisy / c_ref},
+                 {"volume_over_reference", ratio(c_dn, c_ref)},
+                 {"noisy_volume_over_reference", ratio(c_noisy, c_ref)},
                  {"composite_over_reference", c_comp},
                  {"pixels_in", in},
                  {"pixels_between", between}}},
                {"mean_luminance_over_reference",
                 {{"surface", m_surf},
                  {"volume", m_vol},
-                 {"surface_noisy", mean_luminance(n_surf) / mean_luminance(r_surf) - 1},
-                 {"volume_noisy", mean_luminance(n_vol) / mean_luminance(r_vol) - 1}}},
+                 {"surface_noisy", minus_one(ratio(mean_luminance(n_surf), mean_luminance(r_surf)))},
+                 {"volume_noisy", minus_one(ratio(mean_luminance(n_vol), mean_luminance(r_vol)))}}},
                {"volume_history", hist},
                {"block_ratio",
                 {{"volume", block_ratio(luminance_of(d_vol), W, H)},
                  {"composite", block_ratio(luminance_of(d_L), W, H)},
                  {"volume_reference", block_ratio(Y_ref, W, H)}}}};
     frames.push_back(fr);
-    if (f >= 4) contrast_after4.push_back(c_dn / c_ref - 1);
-    mean_surface.push_back(m_surf);
-    mean_volume.push_back(m_vol);
+    if (f >= 4 && ratio(c_dn, c_ref).is_number()) contrast_after4.push_back(c_dn / c_ref - 1);
+    if (m_surf.is_number()) mean_surface.push_back(m_surf.get<double>());
+    if (m_vol.is_number()) mean_volume.push_back(m_vol.get<double>());
     seq_comp.push_back(d_L);
     seq_vol.push_back(d_vol);
     ref_comp.push_back(r_L);
@@ -336,9 +350,6 @@ json bench_shafts(gpu::Context& ctx, const ShaftsOptions& o) {
     c.push_back(channels(seq_vol[size_t(f)]));
     d.push_back(channels(ref_vol[size_t(f)]));
   }
-  std::vector<double> worst_mean;
-  for (size_t f = 0; f < mean_surface.size(); ++f)
-    worst_mean.push_back(std::max(std::abs(mean_surface[f]), std::abs(mean_volume[f])));
   return {{"scene", sj},
           {"size", {W, H}},
           {"frames", o.frames},
@@ -348,7 +359,7 @@ json bench_shafts(gpu::Context& ctx, const ShaftsOptions& o) {
             {"spp", o.reference_spp},
             {"volume_samples", o.reference_volume_samples},
             {"worst_error_quantile", ref_error}}},
-          {"volume_geometry", "surface"},
+          {"volume_geometry", s.denoise.volume.geometry},
           {"volume_motion", s.denoise.volume_motion},
           {"per_frame", frames},
           {"contrast_error_from_frame_4", summary_of(contrast_after4)},
@@ -376,9 +387,9 @@ void print_shafts(const json& j) {
         f["frame"].get<int>(), rm["composite"].get<double>(), rm["composite_noisy"].get<double>(),
         fl["composite"].get<double>(), fl["composite_noisy"].get<double>(), rm["volume"].get<double>(),
         rm["volume_noisy"].get<double>(), fl["volume"].get<double>(), fl["volume_noisy"].get<double>(),
-        100 * (c["volume_over_reference"].get<double>() - 1),
-        100 * (c["composite_over_reference"].get<double>() - 1), 100 * m["surface"].get<double>(),
-        100 * m["volume"].get<double>(), h.value("mean_where_wrong", 0.0), h.value("mean_where_right", 0.0));
+        100 * (number_or_nan(c["volume_over_reference"]) - 1),
+        100 * (number_or_nan(c["composite_over_reference"]) - 1), 100 * number_or_nan(m["surface"]),
+        100 * number_or_nan(m["volume"]), h.value("mean_where_wrong", 0.0), h.value("mean_where_right", 0.0));
   }
   fmt::print(
       "  (denoised/noisy; contrast: the sheets' contrast in the denoised volume term and composite against "

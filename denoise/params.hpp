@@ -75,8 +75,9 @@ inline SvgfParams volume_defaults() {
 struct DenoiseSettings {
   SvgfParams surface;
   SvgfParams volume = volume_defaults();
-  // Which motion vectors reproject the volume instance's history: the virtual points' (volume motion) or
-  // the surface G-buffer's (an ablation).
+  // Which motion vectors reproject the volume instance's history: the virtual points' projected forward
+  // (volume motion), each pixel's own virtual point reprojected backward with the camera's motion (the
+  // baseline), or the surface G-buffer's (an ablation).
   std::string volume_motion = "virtual_points";
 };
 
@@ -156,8 +157,10 @@ template <class V>
 void reflect(V& v, DenoiseSettings& d) {
   v.field("surface", d.surface, "the surface instance (demodulated surface signal, surface G-buffer)");
   v.field("volume", d.volume, "the volume instance (light shafts; normal rejection off, weak depth terms)");
-  v.field("volume_motion", d.volume_motion, reflection::Choices{"virtual_points", "surface"},
-          "motion vectors of the volume instance: the virtual points' or the surface G-buffer's");
+  v.field("volume_motion", d.volume_motion, reflection::Choices{"virtual_points", "backward", "surface"},
+          "motion vectors of the volume instance: the virtual points projected forward, each pixel's own "
+          "virtual point reprojected into the previous camera (camera motion only, no forward projection), or "
+          "the surface G-buffer's");
 }
 
 }  // namespace haze::denoise

@@ -39,6 +39,10 @@ class VolumeMotion {
 
   // Records the passes (timer scope "volume_motion" when a timer is given); ends with a compute barrier.
   void run(VkCommandBuffer cmd, gpu::Timer* timer, const VolumeMotionInputs& in);
+  // The baseline without forward projection: each pixel's own virtual point, `in.prev_depth` holding this
+  // frame's depth, reprojected into the previous camera (camera motion only; scope "volume_motion_backward").
+  // Writes output() as run() does.
+  void run_backward(VkCommandBuffer cmd, gpu::Timer* timer, const VolumeMotionInputs& in);
 
   // vec4 per pixel: xy previous pixel position - current one, z distance of the point from this frame's
   // camera minus d_prev, w 1 where a point landed (else xy the surface motion, z 0, w 0).
@@ -54,9 +58,10 @@ class VolumeMotion {
   gpu::Buffer keys_;    // per pixel: (distance bits << 32 | source pixel) of the nearest point, atomicMin
   gpu::Buffer output_;  // vec4 per pixel
   double pipeline_ms_ = 0;
-  // Splat and resolve, without and with moving media.
-  const gpu::Kernel& kernel(bool resolve, bool moving);
-  gpu::Kernel kernels_[2][2];
+  // Splat (0), resolve (1) and backward (2), without and with moving media.
+  const gpu::Kernel& kernel(uint32_t step, bool moving);
+  gpu::Kernel kernels_[3][2];
+  void check(const VolumeMotionInputs& in) const;
 };
 
 }  // namespace haze::guiding

@@ -210,7 +210,7 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
       if (volume_instance) {
         svgf_volume = std::make_unique<denoise::Svgf>(ctx, "volume", settings.denoise.volume, W, H, false);
         volume_motion_used =
-            settings.denoise.volume_motion == "virtual_points" &&
+            settings.denoise.volume_motion != "surface" &&
             std::find(img.channels.begin(), img.channels.end(), "volume_motion.X") != img.channels.end();
         if (volume_motion_used)
           volume_motion =

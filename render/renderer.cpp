@@ -185,7 +185,7 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   keep_svgf(svgf_volume_, "volume", media_.any() && s.denoise.volume.enabled, s.denoise.volume, false);
   if (svgf_surface_ || svgf_volume_)
     tonemap_ = kernel(tonemap_decl(pixels, bool(svgf_surface_), bool(svgf_volume_)));
-  const bool virtual_points = svgf_volume_ && s.denoise.volume_motion == "virtual_points";
+  const bool virtual_points = svgf_volume_ && s.denoise.volume_motion != "surface";
   if (virtual_points || (guide_.active() && s.guiding.temporal)) {
     if (!volume_motion_ || volume_motion_->width() != uint32_t(s.render.width) ||
         volume_motion_->height() != uint32_t(s.render.height)) {
@@ -340,7 +340,17 @@ Image Renderer::resolve() {
       in.emission = nullptr;
       in.colour = &vol;
       in.colour_offset = glsl::OUT_VOL % 4;
-      if (scene_.denoise.volume_motion == "virtual_points") {
+      if (scene_.denoise.volume_motion == "backward") {
+        // The baseline: this frame's own virtual points, reprojected with the camera's motion.
+        guiding::VolumeMotionInputs vm;
+        vm.scene = &scene_buf_;
+        vm.prev_depth = &vol;
+        vm.depth_stride = 4;
+        vm.depth_offset = glsl::OUT_VPDEPTH % 4;
+        vm.g_normal = &gbuffer_[layer_of(glsl::G_MOTION)];
+        volume_motion_->run_backward(cmd, timer_.get(), vm);
+      }
+      if (scene_.denoise.volume_motion != "surface") {
         in.motion = &volume_motion_->output();
         in.motion_stride = 4;
         in.motion_offset = 0;
