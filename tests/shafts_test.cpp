@@ -9,6 +9,7 @@
 // history that drops where the reprojection is wrong.
 #include <gtest/gtest.h>
 
+#include <fstream>
 #include <iostream>
 
 #include "bench/shafts_bench.hpp"
@@ -96,6 +97,17 @@ TEST(Shafts, SheetsMeanAndBlocksImproveOnTheFormerVolumeSettings) {
   // The composite is closer to the reference by FLIP (measured 0.153 against 0.171).
   EXPECT_LT(flip(now), flip(former) - 0.007);
   EXPECT_EQ(context().validation_messages(), 0u);
+}
+
+// scenes/shafts.json is the bench's sequence, 24 frames at 192x108: the file a user renders and the scene the
+// figures in docs/denoising.md come from stay one.
+TEST(Shafts, ShippedSceneIsTheBenchSequence) {
+  bench::ShaftsOptions o;
+  o.frames = 24;
+  std::ifstream f(std::string(HAZE_SOURCE_DIR) + "/scenes/shafts.json");
+  ASSERT_TRUE(f.good());
+  EXPECT_EQ(json::parse(f), bench::shafts_scene(o));
+  EXPECT_NO_THROW(make_scene(bench::shafts_scene(o)));
 }
 
 }  // namespace
