@@ -345,6 +345,22 @@ int main(int argc, char** argv) {
   make->add_option("--frequency", spec.frequency, "cloud noise frequency");
   make->add_option("--seed", spec.seed, "cloud noise seed");
   make->add_option("--octaves", spec.octaves, "cloud noise octaves");
+  std::string make_frames;
+  std::vector<double> make_move;
+  bool make_velocity = false;
+  double make_fps = 24;
+  make->add_option("--frames", make_frames,
+                   "write a sequence, one file per frame A..B (\"A:B\"); --out then holds a run of # for the "
+                   "frame number, as in smoke_####.vdb");
+  make->add_option("--move", make_move,
+                   "displacement per frame, world units (frame f is moved by f times it)")
+      ->expected(3);
+  make->add_flag(
+      "--velocity", make_velocity,
+      "also write the motion as a velocity: float grids vel.x, vel.y, vel.z in world units per second "
+      "(--move times --fps) over the volume");
+  make->add_option("--fps", make_fps, "frames per second of --velocity (the scene's render.fps)")
+      ->check(CLI::Range(1e-3, 1e3));
   auto* info = vdbcmd->add_subcommand("info", "grids, types, bounds, voxel size, value range, memory");
   std::string info_file;
   bool info_json = false;
@@ -355,9 +371,9 @@ int main(int argc, char** argv) {
       "bench", "the benchmark suite: ratios measured in one run on one device (docs/benchmarks.md)");
   haze::bench::Options bo;
   bench->add_flag("--json", bo.json, "print JSON instead of a table");
-  bench->add_option(
-      "--only", bo.only,
-      "run only these parts, comma-separated: first_frame, passes, bvh, svgf, guiding, volume_repr, shafts");
+  bench->add_option("--only", bo.only,
+                    "run only these parts, comma-separated: first_frame, passes, bvh, svgf, guiding, "
+                    "velocity, volume_repr, shafts");
   bench->add_option("--size", bo.size, "image size WIDTHxHEIGHT");
   bench->add_option("--spp", bo.spp, "samples per measurement");
   bench->add_option("--denoise-sizes", bo.denoise_sizes, "sizes of the SVGF timings, WxH[,WxH...]");
@@ -418,8 +434,28 @@ int main(int argc, char** argv) {
                           {"seed", spec.seed},
                           {"octaves", spec.octaves}};
       spec = haze::vdb::procedural_from_json(j, "haze vdb make");
-      haze::vdb::write_procedural(spec, vdb_out);
-      fmt::print("wrote {}\n", vdb_out);
+      // One file, or one per frame of --frames: the same voxels, moved by f * --move through the grid's
+      // transform, with the velocity that moves them.
+      auto [first, last] = make_frames.empty() ? std::pair{0, 0} : scene::parse_frames(make_frames);
+      if (make_frames.empty() == scene::is_sequence(vdb_out))
+        throw std::runtime_error(
+            make_frames.empty()
+                ? fmt::format("--out {}: a run of # is a frame number; give --frames A:B for a sequence",
+                              vdb_out)
+                : fmt::format(
+                      "--out {}: a sequence needs a run of # for the frame number, as in smoke_####.vdb",
+                      vdb_out));
+      const glm::dvec3 move =
+          make_move.size() == 3 ? glm::dvec3(make_move[0], make_move[1], make_move[2]) : glm::dvec3(0);
+      std::vector<haze::vdb::ProceduralFile> files;
+      for (int f = first; f <= last; ++f) files.push_back({scene::frame_file(vdb_out, f), move * double(f)});
+      haze::vdb::write_procedural(spec, files,
+                                  make_velocity ? std::optional<glm::dvec3>(move * make_fps) : std::nullopt);
+      if (first == last)
+        fmt::print("wrote {}\n", scene::frame_file(vdb_out, first));
+      else
+        fmt::print("wrote {} files {} .. {}\n", last - first + 1, scene::frame_file(vdb_out, first),
+                   scene::frame_file(vdb_out, last));
       return 0;
     }
     if (*info) {

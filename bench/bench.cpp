@@ -17,6 +17,7 @@
 #include "bench/bench_util.hpp"
 #include "bench/guiding_bench.hpp"
 #include "bench/shafts_bench.hpp"
+#include "bench/velocity_bench.hpp"
 #include "bench/volume_repr_bench.hpp"
 #include "denoise/svgf.hpp"
 #include "render/renderer.hpp"
@@ -419,6 +420,14 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
         c["volume"]["bytes"].get<double>() / c["surface"]["bytes"].get<double>(),
         "ledger bytes of the two SVGF instances");
   }
+  if (j.contains("velocity")) {
+    const auto& r = j["velocity"]["relmse_ratio_rigid_over_velocity_per_seed"];
+    add("motion rigid/velocity", j["velocity"]["relmse_ratio_rigid_over_velocity"],
+        fmt::format(
+            "denoised volume relMSE on a moving smoke sequence, rigid-only / velocity motion, ratio of "
+            "means over seeds (per seed {:.2f}..{:.2f}); >1: velocity wins",
+            r["min"].get<double>(), r["max"].get<double>()));
+  }
   if (j.contains("volume_repr"))
     for (const auto& g : j["volume_repr"]["grids"]) {
       const std::string id = g["name"];
@@ -472,8 +481,8 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
 }  // namespace
 
 const std::vector<std::string>& part_names() {
-  static const std::vector<std::string> names = {"first_frame", "passes",      "bvh",   "svgf",
-                                                 "guiding",     "volume_repr", "shafts"};
+  static const std::vector<std::string> names = {"first_frame", "passes",   "bvh",         "svgf",
+                                                 "guiding",     "velocity", "volume_repr", "shafts"};
   return names;
 }
 
@@ -545,6 +554,13 @@ int run(const Options& o, const gpu::ContextOptions& co) {
     go.height = gh;
     go.seeds = o.guiding_seeds;
     j["guiding"] = bench_guiding(ctx, go);
+  }
+  if (wants("velocity") && o.guiding_seeds > 0) {
+    VelocityBenchOptions vo;
+    vo.width = gw;
+    vo.height = gh;
+    vo.seeds = o.guiding_seeds;
+    j["velocity"] = bench_velocity(ctx, vo);
   }
   if (wants("volume_repr")) {
     VolumeReprOptions vo;
@@ -634,6 +650,7 @@ int run(const Options& o, const gpu::ContextOptions& co) {
                          : 0.0);
       }
     if (j.contains("guiding")) print_guiding(j["guiding"]);
+    if (j.contains("velocity")) print_velocity(j["velocity"]);
     if (j.contains("volume_repr")) print_volume_repr(j["volume_repr"]);
     if (j.contains("shafts")) print_shafts(j["shafts"]);
   }

@@ -8,6 +8,7 @@
 #include <map>
 #include <numeric>
 
+#include "bench/bench_util.hpp"
 #include "eval/metrics.hpp"
 #include "render/renderer.hpp"
 #include "scene/scene.hpp"
@@ -53,14 +54,6 @@ json shaft_scene(int w, int h, bool vdb, bool guiding, uint32_t seed) {
   return j;
 }
 
-eval::Channels volume_of(const render::Image& img) {
-  return {img.data.data(), size_t(img.width) * img.height, glsl::OUT_STRIDE, glsl::OUT_VOL};
-}
-
-eval::Channels denoised_volume_of(const render::Image& img) {
-  return {&img.volume_denoised->colour[0].x, size_t(img.width) * img.height, 3, 0};
-}
-
 // Median GPU time of one trace dispatch, after a warm-up sample (lavapipe compiles on the first dispatch).
 double trace_ms(gpu::Context& ctx, const scene::Scene& s, int samples) {
   render::Renderer r(ctx, s);
@@ -69,14 +62,6 @@ double trace_ms(gpu::Context& ctx, const scene::Scene& s, int samples) {
   r.add_samples(samples);
   const auto& ms = r.pass_stats().at("trace").ms;
   return render::median(std::vector<double>(ms.begin() + long(warm), ms.end()));
-}
-
-json summary(const std::vector<double>& v) {
-  double mean = std::accumulate(v.begin(), v.end(), 0.0) / double(v.size());
-  return {{"mean", mean},
-          {"min", *std::min_element(v.begin(), v.end())},
-          {"max", *std::max_element(v.begin(), v.end())},
-          {"values", v}};
 }
 
 scene::Scene make(const json& j) {

@@ -105,7 +105,7 @@ void Renderer::set_scene(const scene::Scene& s, uint32_t frame, const scene::Sce
 void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* prev, bool fresh) {
   const scene::Scene& p = prev ? *prev : s;
   scene_ = s;
-  media_.update(s, p);
+  media_.update(s);
   surfaces_.update(s, p);
   std::vector<lights::Emitter> emitters;
   for (const auto& e : surfaces_.geometry().emitters) emitters.push_back({e.v0, e.v1, e.v2, e.radiance});
@@ -196,6 +196,8 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   } else {
     volume_motion_.reset();
   }
+  // How the media moved, for the pass; velocity grids only when a previous frame's points will be projected.
+  media_.update_motion(s, p, bool(volume_motion_), !fresh && has_frame_);
 }
 
 void Renderer::restart(const scene::Scene& s, uint32_t frame, const scene::Scene* prev) {
@@ -272,6 +274,7 @@ void Renderer::start_frame(VkCommandBuffer cmd) {
     in.g_normal = &gbuffer_[layer_of(glsl::G_MOTION)];
     in.media = media_.motion();
     in.media_count = media_.moving();
+    in.velocity_grids = media_.velocity_grids();
     volume_motion_->run(cmd, timer_.get(), in);
   }
   guide_.start_frame(cmd, timer_.get(), scene_buf_, volume_motion_ ? &volume_motion_->output() : nullptr,
@@ -392,7 +395,7 @@ std::vector<float> Renderer::accum() const {
 }
 
 std::vector<std::string> Renderer::notes() const {
-  std::vector<std::string> n = media_.host().notes;
+  std::vector<std::string> n = media_.notes();
   const auto& g = surfaces_.geometry().notes;
   n.insert(n.end(), g.begin(), g.end());
   return n;

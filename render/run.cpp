@@ -24,6 +24,7 @@ void check_part_specs(const scene::Scene& s) {
         vdb::check_grid_name(m.file, m.grid, where + ".grid");
         if (m.emission.mode != "none" && m.emission.grid != m.grid)
           vdb::check_grid_name(m.file, m.emission.grid, where + ".emission.grid");
+        if (m.velocity) vdb::check_velocity_name(m.file, m.velocity->grid, where + ".velocity.grid");
       }
     }
     for (size_t i = 0; i < s.surfaces.size(); ++i)

@@ -111,6 +111,9 @@ void validate(Medium& m, const Where& w) {
   }
   if (m.grid.empty()) w.fail("grid", "must name a float grid, e.g. \"density\"");
   check_box(m.bounds_min, m.bounds_max, w);
+  if (m.procedural && m.velocity)
+    w.fail("velocity",
+           "a procedural medium has no velocity grid; remove the key or use a .vdb file that has one");
   size_t runs = 0;
   for (size_t i = 0; i < m.file.size(); ++i) runs += m.file[i] == '#' && (i == 0 || m.file[i - 1] != '#');
   if (runs > 1) {
@@ -118,6 +121,10 @@ void validate(Medium& m, const Where& w) {
                                "smoke_####.vdb",
                                m.file, runs));
   }
+}
+
+void validate(Velocity& v, const Where& w) {
+  if (v.grid.empty()) w.fail("grid", "must name a velocity grid, e.g. \"vel\"");
 }
 
 void validate(Haze& h, const Where& w) {

@@ -525,6 +525,45 @@ TEST_F(Cli, VdbMakeAndInfo) {
   expect_one_line_error(run(fmt::format("vdb make blob --out {}", f)), "blob");
 }
 
+// A sequence with a velocity: one file per frame, the cloud moved by f * --move through its transform, and
+// vel.x/y/z = --move * --fps over it; a scene renders it with its velocity; the errors are one line.
+TEST_F(Cli, VdbMakeWritesAMovingSequenceWithVelocity) {
+  const std::string pattern = (dir / "smoke_##.vdb").string();
+  auto m =
+      run(fmt::format("vdb make cloud --out {} --voxel-size 0.1 --size 1 1 1 --frames 0:2 --move 0.2 0 -0.1 "
+                      "--velocity --fps 10",
+                      pattern));
+  ASSERT_EQ(m.code, 0) << m.out;
+  double x0 = 0;
+  for (int f = 0; f <= 2; ++f) {
+    auto i = run(fmt::format("vdb info {} --json", (dir / fmt::format("smoke_{:02d}.vdb", f)).string()));
+    ASSERT_EQ(i.code, 0) << i.out;
+    auto j = nlohmann::json::parse(i.out);
+    ASSERT_EQ(j.size(), 4u);
+    EXPECT_EQ(j[0]["name"], "density");
+    const double x = j[0]["world_min"][0].get<double>();
+    if (f == 0) x0 = x;
+    EXPECT_NEAR(x - x0, 0.2 * f, 1e-9);
+    const double want[3] = {2, 0, -1};
+    for (int c = 0; c < 3; ++c) {
+      EXPECT_EQ(j[c + 1]["name"], std::string("vel.") + "xyz"[c]);
+      EXPECT_NEAR(j[c + 1]["value_min"].get<double>(), want[c], 1e-6);
+      EXPECT_NEAR(j[c + 1]["value_max"].get<double>(), want[c], 1e-6);
+    }
+  }
+  std::string s = write("moving.json", R"({"media": [{"file": "smoke_##.vdb", "velocity": {"grid": "vel"}}],
+    "lights": {"sun": {}}, "render": {"width": 16, "height": 12, "spp": 2, "fps": 10, "frames": "0:2"}})");
+  auto r = run(fmt::format("render {} --out {}", s, (dir / "o").string()));
+  EXPECT_EQ(r.code, 0) << r.out;
+  std::string bad = write("bad.json", R"({"media": [{"file": "smoke_##.vdb", "velocity": {"grid": "v"}}],
+    "render": {"frames": "0:1"}})");
+  expect_one_line_error(run(fmt::format("render {} --out {}", bad, (dir / "o2").string())),
+                        "media[0].velocity.grid");
+  expect_one_line_error(run(fmt::format("vdb make cloud --out {} --frames 0:2", (dir / "x.vdb").string())),
+                        "run of #");
+  expect_one_line_error(run(fmt::format("vdb make cloud --out {}", (dir / "x_#.vdb").string())), "--frames");
+}
+
 TEST_F(Cli, PipelineCacheFileIsWritten) {
   std::string cache = (dir / "pipelines.bin").string();
   auto r =
