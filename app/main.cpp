@@ -394,7 +394,7 @@ int main(int argc, char** argv) {
   bench->add_flag("--json", bo.json, "print JSON instead of a table");
   bench->add_option("--only", bo.only,
                     "run only these parts, comma-separated: first_frame, passes, bvh, svgf, guiding, "
-                    "velocity, volume_repr, view");
+                    "velocity, volume_repr, view, shafts");
   bench->add_option("--size", bo.size, "image size WIDTHxHEIGHT");
   bench->add_option("--spp", bo.spp, "samples per measurement");
   bench->add_option("--denoise-sizes", bo.denoise_sizes, "sizes of the SVGF timings, WxH[,WxH...]");
@@ -404,6 +404,20 @@ int main(int argc, char** argv) {
       ->add_option("--guiding-seeds", bo.guiding_seeds,
                    "seeds of the guided/unguided comparison (0: skip it)")
       ->check(CLI::Range(0, 1000));
+  bench->add_option("--shafts-size", bo.shafts_size, "image size of the shaft sequence (WIDTHxHEIGHT)");
+  bench->add_option("--shafts-frames", bo.shafts_frames, "frames of the shaft sequence")
+      ->check(CLI::Range(1, 10000));
+  bench
+      ->add_option("--shafts-reference-spp", bo.shafts_reference_spp,
+                   "samples per reference frame of the shaft sequence")
+      ->check(CLI::Range(1, 1 << 20));
+  bench->add_option("--reference-dir", bo.reference_dir,
+                    "cache of the shaft sequence's references (default $XDG_CACHE_HOME/haze/references)");
+  bench->add_option("--shafts-set", bo.shafts_set,
+                    "JSON object merged into the shaft sequence's scene, e.g. '{\"denoise\": {\"volume\": "
+                    "{\"iterations\": 3}}}'");
+  bench->add_option("--images", bo.images_dir,
+                    "write PNGs of the shaft sequence's frames 0, 4 and the last here");
 
   try {
     app.parse(argc, argv);

@@ -87,6 +87,7 @@ gpu::KernelDecl tonemap_decl(uint64_t pixels, bool surface_half, bool volume_hal
 // later frames may overwrite the layers while the host reads this one.
 struct Renderer::Readback {
   gpu::Buffer out, gbuffer, ldr, counters, volume_motion;
+  std::vector<bool> out_present;  // out's layers in the host layout; absent ones were not copied
   gpu::Buffer surface_output, surface_moments, volume_output, volume_moments;
 };
 
@@ -159,11 +160,15 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   for (size_t i = 0; i < s.surfaces.size() && i < p.surfaces.size(); ++i)
     object_motion_ |= s.surfaces[i].transform.matrix() != p.surfaces[i].transform.matrix();
 
-  // The frame's layers, remade only when the size changes.
+  // The frame's layers, remade only when the size changes or emitters come or go: the camera hits' emission
+  // (acc_emit, out_emit) is a layer of its own only in scenes with emissive surfaces.
   const uint64_t pixels = uint64_t(s.render.width) * s.render.height;
-  if (accum_.pixels() != pixels) {
-    accum_ = gpu::PixelLayers(ctx_, "accumulation", "per-frame temporaries", pixels, kAccumulationLayers);
-    out_ = gpu::PixelLayers(ctx_, "resolved", "outputs", pixels, kResolvedLayers);
+  const bool emission = !surfaces_.geometry().emitters.empty();
+  if (accum_.pixels() != pixels || accum_.has("acc_emit") != emission) {
+    accum_ = gpu::PixelLayers(ctx_, "accumulation", "per-frame temporaries", pixels, kAccumulationLayers,
+                              emission ? std::vector<std::string>{} : std::vector<std::string>{"acc_emit"});
+    out_ = gpu::PixelLayers(ctx_, "resolved", "outputs", pixels, kResolvedLayers,
+                            emission ? std::vector<std::string>{} : std::vector<std::string>{"out_emit"});
     gbuffer_ = gpu::PixelLayers(ctx_, "g-buffer", "per-frame temporaries", pixels, kGBufferLayers);
     prev_gbuffer_ =
         gpu::PixelLayers(ctx_, "previous g-buffer", "previous-frame data", pixels, kPrevGBufferLayers);
@@ -198,10 +203,11 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   // The surface instance on the demodulated surface signal; the volume instance on the volume signal with
   // albedo 1 and the volume motion vectors. Each keeps its history across frames of the same size.
   keep_svgf(svgf_surface_, "surface", surfaces_.any() && s.denoise.surface.enabled, s.denoise.surface, true);
+  if (svgf_surface_) svgf_surface_->set_emission(emission);
   keep_svgf(svgf_volume_, "volume", media_.any() && s.denoise.volume.enabled, s.denoise.volume, false);
   if (svgf_surface_ || svgf_volume_)
     tonemap_ = kernel(tonemap_decl(pixels, bool(svgf_surface_), bool(svgf_volume_)));
-  const bool virtual_points = svgf_volume_ && s.denoise.volume_motion == "virtual_points";
+  const bool virtual_points = svgf_volume_ && s.denoise.volume_motion != "surface";
   if (virtual_points || (guide_.active() && s.guiding.temporal)) {
     if (!volume_motion_ || volume_motion_->width() != uint32_t(s.render.width) ||
         volume_motion_->height() != uint32_t(s.render.height)) {
@@ -338,6 +344,13 @@ void Renderer::start_frame(VkCommandBuffer cmd, gpu::Timer* timer) {
     in.prev_depth = &out_[layer_of(glsl::OUT_VPDEPTH)];
     in.depth_stride = 4;
     in.depth_offset = glsl::OUT_VPDEPTH % 4;
+    if (svgf_volume_ && svgf_volume_->geometry_depth()) {
+      // The volume instance's own geometry: the virtual point depth it accumulated over its history, far less
+      // noisy than the last frame's alone.
+      in.prev_depth = svgf_volume_->geometry_depth();
+      in.depth_stride = 2;
+      in.depth_offset = 0;
+    }
     in.g_normal = &gbuffer_[layer_of(glsl::G_MOTION)];
     in.media = media_.motion();
     in.media_count = media_.moving();
@@ -408,20 +421,35 @@ void Renderer::record_resolve(VkCommandBuffer cmd, gpu::Timer* timer) {
   if (svgf_surface_) {
     in.colour = &out_[layer_of(glsl::OUT_DEMOD)];
     in.colour_offset = glsl::OUT_DEMOD % 4;
-    in.emission = &out_[layer_of(glsl::OUT_EMIT)];  // added back after remodulation
-    in.emission_stride = 4;
-    in.emission_offset = glsl::OUT_EMIT % 4;
+    if (out_.has("out_emit")) {
+      in.emission = &out_[layer_of(glsl::OUT_EMIT)];  // added back after remodulation
+      in.emission_stride = 4;
+      in.emission_offset = glsl::OUT_EMIT % 4;
+    }
     svgf_surface_->run(cmd, timer, in);
   }
   if (svgf_volume_) {
     in.emission = nullptr;
     in.colour = &vol;
     in.colour_offset = glsl::OUT_VOL % 4;
-    if (scene_.denoise.volume_motion == "virtual_points") {
+    if (scene_.denoise.volume_motion == "backward") {
+      // The baseline: this frame's own virtual points, reprojected with the camera's motion.
+      guiding::VolumeMotionInputs vm;
+      vm.scene = &scene_buf_;
+      vm.prev_depth = &vol;
+      vm.depth_stride = 4;
+      vm.depth_offset = glsl::OUT_VPDEPTH % 4;
+      vm.g_normal = &gbuffer_[layer_of(glsl::G_MOTION)];
+      volume_motion_->run_backward(cmd, timer, vm);
+    }
+    if (scene_.denoise.volume_motion != "surface") {
       in.motion = &volume_motion_->output();
       in.motion_stride = 4;
       in.motion_offset = 0;
     }
+    in.depth = &vol;  // used by geometry "virtual_points"
+    in.depth_stride = 4;
+    in.depth_offset = glsl::OUT_VPDEPTH % 4;
     svgf_volume_->run(cmd, timer, in);
   }
   if (timer) timer->begin(cmd, "tonemap");
@@ -460,13 +488,16 @@ void Renderer::record_readback(VkCommandBuffer cmd, Readback& rb) {
   };
   auto layers = [](const gpu::PixelLayers& l) {
     std::vector<const gpu::Buffer*> v;
-    for (size_t i = 0; i < l.count(); ++i) v.push_back(&l[i]);
+    for (size_t i = 0; i < l.count(); ++i)
+      if (l[i].valid()) v.push_back(&l[i]);
     return v;
   };
   auto one = [](const gpu::Buffer* b) {
     return b ? std::vector<const gpu::Buffer*>{b} : std::vector<const gpu::Buffer*>{};
   };
   gpu::compute_barrier(cmd);
+  rb.out_present.assign(out_.count(), false);
+  for (size_t i = 0; i < out_.count(); ++i) rb.out_present[i] = out_[i].valid();
   copy(rb.out, "resolved", layers(out_));
   copy(rb.gbuffer, "g-buffer", layers(gbuffer_));
   copy(rb.ldr, "preview", one(&ldr_));
@@ -485,22 +516,28 @@ Image Renderer::read_image(const Readback& rb, int samples, int width, int heigh
     b.read_mapped(v.data(), v.size() * 4);
     return v;
   };
-  // Layers one after another -> side by side (stride 4 * layers floats per pixel).
-  auto interleave = [&](const gpu::Buffer& b) {
+  // Present layers one after another -> side by side (stride 4 * layers floats per pixel); absent layers
+  // keep their place as zeros.
+  auto interleave = [&](const gpu::Buffer& b, std::vector<bool> present) {
     const std::vector<float> planes = floats(b);
-    const size_t layers = planes.size() / (pixels * 4);
-    std::vector<float> out(planes.size());
-    for (size_t l = 0; l < layers; ++l)
+    if (present.empty()) present.assign(planes.size() / (pixels * 4), true);
+    const size_t layers = present.size();
+    std::vector<float> out(pixels * 4 * layers, 0.f);
+    for (size_t l = 0, at = 0; l < layers; ++l) {
+      if (!present[l]) continue;
       for (size_t p = 0; p < pixels; ++p)
-        for (size_t c = 0; c < 4; ++c) out[(p * layers + l) * 4 + c] = planes[(l * pixels + p) * 4 + c];
+        for (size_t c = 0; c < 4; ++c) out[(p * layers + l) * 4 + c] = planes[(at * pixels + p) * 4 + c];
+      ++at;
+    }
     return out;
   };
   Image img;
   img.width = width;
   img.height = height;
   img.samples = samples;
-  img.data = interleave(rb.out);
-  img.gbuffer = interleave(rb.gbuffer);
+  img.data = interleave(rb.out, rb.out_present);
+  img.surface_emission = rb.out_present[layer_of(glsl::OUT_EMIT)];
+  img.gbuffer = interleave(rb.gbuffer, {});
   img.ldr.resize(pixels);
   rb.ldr.read_mapped(img.ldr.data(), pixels * 4);
   auto svgf = [&](const gpu::Buffer& output, const gpu::Buffer& moments) {

@@ -38,8 +38,9 @@ struct Image {
   int width = 0, height = 0;
   int samples = 0;
   std::vector<float> data;
-  std::vector<float> gbuffer;  // G_STRIDE floats per pixel
-  std::vector<uint32_t> ldr;   // RGBA8, row 0 at the top (the denoised frame when a denoiser ran)
+  std::vector<float> gbuffer;     // G_STRIDE floats per pixel
+  bool surface_emission = false;  // the scene has emissive surfaces: OUT_EMIT holds their emission (else 0)
+  std::vector<uint32_t> ldr;      // RGBA8, row 0 at the top (the denoised frame when a denoiser ran)
   std::optional<denoise::SvgfResult> surface_denoised;  // when the surface instance ran
   std::optional<denoise::SvgfResult> volume_denoised;   // when the volume instance ran
   std::vector<glm::vec4> volume_motion;  // when computed: guiding::VolumeMotion::output() per pixel
