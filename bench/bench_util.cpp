@@ -1,5 +1,8 @@
 #include "bench/bench_util.hpp"
 
+#include <algorithm>
+#include <numeric>
+
 #include "render/renderer.hpp"
 
 namespace haze::bench {
@@ -25,6 +28,21 @@ std::vector<double> timed_medians(gpu::Context& ctx, int reps, const std::vector
 
 double timed_median(gpu::Context& ctx, int reps, const Record& record) {
   return timed_medians(ctx, reps, {record}).at(0);
+}
+
+eval::Channels volume_of(const render::Image& img) {
+  return {img.data.data(), size_t(img.width) * img.height, glsl::OUT_STRIDE, glsl::OUT_VOL};
+}
+
+eval::Channels denoised_volume_of(const render::Image& img) {
+  return {&img.volume_denoised->colour[0].x, size_t(img.width) * img.height, 3, 0};
+}
+
+nlohmann::json summary(const std::vector<double>& v) {
+  return {{"mean", std::accumulate(v.begin(), v.end(), 0.0) / double(v.size())},
+          {"min", *std::min_element(v.begin(), v.end())},
+          {"max", *std::max_element(v.begin(), v.end())},
+          {"values", v}};
 }
 
 }  // namespace haze::bench

@@ -15,7 +15,7 @@ namespace {
 
 // Push constants of shaders/bench/volume_repr.comp.
 struct ReprPush {
-  uint32_t count, n, grid_offset, seed;
+  uint32_t count, n, grid, seed;
   glm::vec4 lo, hi;
   glm::ivec4 dense_origin, dense_dims;
 };
@@ -48,7 +48,7 @@ VolumeReprKernels::VolumeReprKernels(gpu::Context& ctx) : ctx_(ctx) {
       // medium.glsl's scene, media and majorant bindings are declared but never read here.
       gpu::KernelDecl d("bench/volume_repr.comp");
       if (dense) d.define("HAZE_DENSE");
-      d.buffer("scene").buffer("nanovdb").buffer("media").buffer("majorant").buffer("dense").buffer("result");
+      d.buffer("scene").buffer("grids").buffer("media").buffer("majorant").buffer("dense").buffer("result");
       kernels_[dense][march] =
           gpu::Kernel(ctx, std::move(d.push(sizeof(ReprPush)).specialize({uint32_t(march)})));
     }
@@ -84,6 +84,10 @@ ReprGrid VolumeReprKernels::upload(const vdb::DeviceGrid& grid, const std::strin
   g.nanovdb =
       gpu::Buffer(ctx_, fmt::format("bench {} nanovdb", name), "benchmark", g.nanovdb_bytes, "NanoVDB");
   g.nanovdb.upload(grid.nanovdb);
+  const uint64_t a = g.nanovdb.device_address();
+  g.table =
+      gpu::Buffer(ctx_, fmt::format("bench {} grid address", name), "benchmark", 8, "u64 device address");
+  g.table.upload(std::vector<glm::uvec2>{{uint32_t(a), uint32_t(a >> 32)}});
   g.dense =
       gpu::Buffer(ctx_, fmt::format("bench {} dense", name), "benchmark", g.dense_bytes, "f32 x-fastest");
   g.dense.upload(dense);
@@ -101,10 +105,7 @@ void VolumeReprKernels::record(VkCommandBuffer cmd, const ReprGrid& g, bool dens
                 glm::ivec4(g.origin, 0),
                 glm::ivec4(g.dims, 0)};
   gpu::Bindings b;
-  b.set("scene", placeholder_)
-      .set("nanovdb", g.nanovdb)
-      .set("media", placeholder_)
-      .set("majorant", placeholder_);
+  b.set("scene", placeholder_).set("grids", g.table).set("media", placeholder_).set("majorant", placeholder_);
   b.set("dense", g.dense).set("result", out);
   const gpu::Kernel& k = kernels_[dense][march];
   k.dispatch_1d(cmd, b, &push, count);

@@ -20,6 +20,7 @@ namespace haze::bench {
 struct ReprGrid {
   std::string name;
   gpu::Buffer nanovdb;            // the NanoVDB grid buffer as the tracker uploads it
+  gpu::Buffer table;              // its device address: the kernel's grid table, grid 0
   gpu::Buffer dense;              // floats, x fastest, over origin .. origin + dims - 1
   glm::ivec3 origin{0}, dims{0};  // the grid's active index bbox dilated by one voxel (the trilinear support)
   glm::vec3 lo{0}, hi{0};         // index-space domain of the lookup points: [origin, origin + dims - 1)

@@ -51,6 +51,14 @@ struct Emission {
   float temperature_scale = 1.f;  // kelvin per grid unit, for blackbody
 };
 
+// The velocity of a VDB medium's contents: its virtual points move with it between frames (the volume
+// motion vectors, docs/rendering.md "Volume motion"), on top of the medium's transform.
+struct Velocity {
+  std::string grid = "vel";     // a vec3 grid of the medium's file, or its float grids grid.x, .y, .z
+  float scale = 1.f;            // multiplier on the grid's vectors
+  std::string unit = "second";  // second: world units per second (a frame is 1 / fps) | frame: per frame
+};
+
 // One VDB medium.
 struct Medium {
   // A .vdb; relative paths are resolved against Scene::base_dir on load. A run of '#' makes it a
@@ -67,6 +75,7 @@ struct Medium {
   // face). The defaults leave it unbounded.
   glm::vec3 bounds_min{-1e30f};
   glm::vec3 bounds_max{1e30f};
+  std::optional<Velocity> velocity;  // absent: the contents move only with the transform
 };
 
 // A triangle mesh instance with a Lambertian material.
@@ -200,6 +209,7 @@ std::vector<ParamInfo> describe();
 void validate(Camera& c, const Where& w);
 void validate(Transform& t, const Where& w);
 void validate(Emission& e, const Where& w);
+void validate(Velocity& v, const Where& w);
 void validate(Medium& m, const Where& w);
 void validate(Surface& m, const Where& w);
 void validate(Haze& h, const Where& w);
@@ -235,6 +245,16 @@ void reflect(V& v, Emission& e) {
 }
 
 template <class V>
+void reflect(V& v, Velocity& e) {
+  v.field("grid", e.grid,
+          "velocity grid of the medium's file: a vec3 grid (staggered ones too), or float grids named "
+          "grid.x, grid.y, grid.z");
+  v.field("scale", e.scale, Range{-1e6, 1e6}, "multiplier on the grid's vectors");
+  v.field("unit", e.unit, Choices{"second", "frame"},
+          "second: world units per second (a frame lasts 1 / render.fps); frame: world units per frame");
+}
+
+template <class V>
 void reflect(V& v, Medium& m) {
   v.field("file", m.file,
           ".vdb file, relative to the scene file's folder; a run of # is the frame number (a sequence); "
@@ -251,6 +271,9 @@ void reflect(V& v, Medium& m) {
       "bounds_min", m.bounds_min,
       "world-space box the medium is clipped to (zero outside it, exactly), lower corner; default unbounded");
   v.field("bounds_max", m.bounds_max, "upper corner of that box; each component > bounds_min's");
+  v.field("velocity", m.velocity,
+          "velocity grid that moves the medium's virtual points between frames (volume motion vectors), "
+          "on top of its transform; absent: the transform alone");
 }
 
 template <class V>

@@ -9,6 +9,7 @@ using namespace glm;
 using uint = glm::uint;
 #include "shaders/surfaces/bvh_layout.glsl"
 
-static_assert(sizeof(GpuBvhNode) == 32 && sizeof(GpuTriangle) == 48 && sizeof(GpuTriangleUv) == 32);
+static_assert(sizeof(GpuBvhNode) == 32 && sizeof(GpuTriangle) == 48 && sizeof(GpuTriangleUv) == 32 &&
+              sizeof(GpuTriangleNormals) == 16);
 static_assert(sizeof(GpuRay) == 32 && sizeof(GpuRayHit) == 48);
 }  // namespace haze::glsl

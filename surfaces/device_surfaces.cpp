@@ -32,18 +32,22 @@ void DeviceSurfaces::update(const scene::Scene& s, const scene::Scene& p) {
                      "GpuTriangleUv");
   gpu::keep_uploaded(ctx_, texels_, on && textured_, "albedo textures", "scene data", texels,
                      fmt::format("RGB unorm16, {} textures", placement.size()));
+  gpu::keep_uploaded(ctx_, normals_, on && smooth(), "triangle normals", "scene data",
+                     geometry_.triangle_normals, "3 x octahedral snorm16x2 + flag per triangle");
 }
 
 void DeviceSurfaces::declare(gpu::KernelDecl& k) const {
   if (!any()) return;
   k.define("HAZE_SURFACES");
   if (textured_) k.define("HAZE_TEXTURE");
+  if (smooth()) k.define("HAZE_NORMALS");
   bvh_.declare(k);
   k.buffer("instances", instances_.size(), sizeof(glsl::GpuInstance));
   if (textured_) {
     k.buffer("bvh_uvs", uvs_.size(), sizeof(glsl::GpuTriangleUv));
     k.buffer("texels", texels_.size(), 8);
   }
+  if (smooth()) k.buffer("bvh_normals", normals_.size(), sizeof(glsl::GpuTriangleNormals));
 }
 
 void DeviceSurfaces::bind(gpu::Bindings& b) const {
@@ -54,6 +58,7 @@ void DeviceSurfaces::bind(gpu::Bindings& b) const {
     b.set("bvh_uvs", uvs_);
     b.set("texels", texels_);
   }
+  if (smooth()) b.set("bvh_normals", normals_);
 }
 
 void DeviceSurfaces::fill(glsl::GpuScene& g) const {

@@ -13,7 +13,8 @@
 
 namespace haze::surfaces {
 
-// Features: HAZE_SURFACES (bindings bvh_nodes, bvh_triangles, instances), HAZE_TEXTURE (bvh_uvs, texels).
+// Features: HAZE_SURFACES (bindings bvh_nodes, bvh_triangles, instances), HAZE_TEXTURE (bvh_uvs, texels),
+// HAZE_NORMALS (bvh_normals: shading normals, when a mesh has smooth vertex normals).
 // Emissive surfaces are lights (lights/lights.hpp takes emitters()).
 class DeviceSurfaces : public gpu::DeviceData {
  public:
@@ -25,6 +26,7 @@ class DeviceSurfaces : public gpu::DeviceData {
 
   bool any() const { return !geometry_.instances.empty(); }
   bool textured() const { return textured_; }
+  bool smooth() const { return !geometry_.triangle_normals.empty(); }
   const SceneGeometry& geometry() const { return geometry_; }
 
   void declare(gpu::KernelDecl& k) const override;
@@ -36,7 +38,7 @@ class DeviceSurfaces : public gpu::DeviceData {
   SceneGeometry geometry_;
   bool textured_ = false;
   DeviceBvh bvh_;
-  gpu::Buffer instances_, uvs_, texels_;
+  gpu::Buffer instances_, uvs_, texels_, normals_;
 };
 
 }  // namespace haze::surfaces

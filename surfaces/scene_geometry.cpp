@@ -4,8 +4,11 @@
 #include <fmt/ranges.h>
 
 #include <algorithm>
+#include <cmath>
+#include <glm/gtc/packing.hpp>
 #include <set>
 
+#include "shaders/glsl.hpp"
 #include "surfaces/error.hpp"
 
 namespace haze::surfaces {
@@ -97,6 +100,21 @@ Mesh mesh_from_json(const nlohmann::json& spec, const std::string& where) {
   return m;
 }
 
+bool smooth_normals(const Mesh& m) {
+  if (m.normals.empty()) return false;
+  for (glm::uvec3 t : m.triangles) {
+    const glm::dvec3 a = m.positions[t.x], b = m.positions[t.y], c = m.positions[t.z];
+    const glm::dvec3 ng = glm::normalize(glm::cross(b - a, c - a));
+    for (uint32_t i : {t.x, t.y, t.z}) {
+      const glm::dvec3 n = m.normals[i];
+      const double len = glm::length(n);
+      // Unusable normals (zero, non-finite) count as smooth: the triangles that have them are reported.
+      if (!(len > 0) || !std::isfinite(len) || glm::dot(n / len, ng) < 1 - 1e-6) return true;
+    }
+  }
+  return false;
+}
+
 SceneGeometry build_geometry(const scene::Scene& s, const SceneGeometry* previous) {
   SceneGeometry g;
   for (size_t i = 0; i < s.surfaces.size(); ++i) {
@@ -163,6 +181,43 @@ SceneGeometry build_geometry(const scene::Scene& s, const SceneGeometry* previou
       if (mirrors(g.instances[inst].object_to_world)) std::swap(c.y, c.z);
       g.triangle_uvs[k] = {glm::vec4(mesh.uvs[c.x], mesh.uvs[c.y]), glm::vec4(mesh.uvs[c.z], 0, 0)};
     }
+  }
+  std::vector<bool> smooth(g.meshes.size());
+  for (size_t i = 0; i < g.meshes.size(); ++i) smooth[i] = smooth_normals(g.meshes[i]);
+  if (std::find(smooth.begin(), smooth.end(), true) != smooth.end()) {
+    g.triangle_normals.resize(g.bvh.triangles.size(), glsl::GpuTriangleNormals{});
+    std::vector<size_t> unusable(g.instances.size(), 0);
+    for (size_t k = 0; k < g.bvh.triangles.size(); ++k) {
+      const glsl::GpuTriangle& t = g.bvh.triangles[k];
+      const uint32_t inst = instance_id(t);
+      const Instance& in = g.instances[inst];
+      if (!smooth[in.mesh]) continue;
+      const Mesh& mesh = g.meshes[in.mesh];
+      glm::uvec3 c = mesh.triangles[primitive_id(t)];
+      if (mirrors(in.object_to_world)) std::swap(c.y, c.z);  // world_triangles()'s corner order
+      const glm::dmat3 normal_matrix =
+          glm::transpose(glm::inverse(glm::dmat3(glm::mat3(in.object_to_world))));
+      glm::uvec4 packed(0);
+      bool ok = true;
+      for (int i = 0; i < 3; ++i) {
+        const glm::dvec3 n = normal_matrix * glm::dvec3(mesh.normals[c[i]]);
+        const double len = glm::length(n);
+        ok = ok && len > 0 && std::isfinite(len);
+        if (ok) packed[i] = glm::packSnorm2x16(glsl::oct_encode(glm::vec3(n / len)));
+      }
+      if (!ok) {
+        ++unusable[inst];
+        continue;
+      }
+      packed.w = 1;
+      g.triangle_normals[k].n012 = packed;
+    }
+    for (size_t i = 0; i < unusable.size(); ++i)
+      if (unusable[i] > 0)
+        g.notes.push_back(fmt::format(
+            "surfaces[{}]: {} triangles have a zero or non-finite vertex normal and shade with their "
+            "geometric normal",
+            i, unusable[i]));
   }
   return g;
 }

@@ -34,12 +34,19 @@ struct SceneGeometry {
   std::vector<int32_t> instance_texture;
   // Corner uvs of bvh.triangles (same order), only when a surface is textured.
   std::vector<glsl::GpuTriangleUv> triangle_uvs;
+  // Corner shading normals of bvh.triangles (same order), only when a mesh has smooth vertex normals (OBJ
+  // vn, the sphere primitive): vertex normals that differ from their triangles' geometric normals.
+  std::vector<glsl::GpuTriangleNormals> triangle_normals;
   std::vector<std::string> notes;  // dropped triangles and the like
 };
 
 // The texels of all textures for the shaders' texel buffer (pack_texels, one texture after another), and
 // each texture's uvec4 {first texel, width, height, 1} for GpuInstance::texture.
 std::vector<glm::uvec2> packed_texels(const SceneGeometry& g, std::vector<glm::uvec4>* placement);
+
+// Whether a mesh has vertex normals that differ from its triangles' geometric normals (a flat mesh's normals
+// add nothing to shading).
+bool smooth_normals(const Mesh& m);
 
 // Meshes of `previous` whose source is unchanged are reused (an animation only moves them).
 SceneGeometry build_geometry(const scene::Scene& s, const SceneGeometry* previous = nullptr);

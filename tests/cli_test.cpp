@@ -525,6 +525,45 @@ TEST_F(Cli, VdbMakeAndInfo) {
   expect_one_line_error(run(fmt::format("vdb make blob --out {}", f)), "blob");
 }
 
+// A sequence with a velocity: one file per frame, the cloud moved by f * --move through its transform, and
+// vel.x/y/z = --move * --fps over it; a scene renders it with its velocity; the errors are one line.
+TEST_F(Cli, VdbMakeWritesAMovingSequenceWithVelocity) {
+  const std::string pattern = (dir / "smoke_##.vdb").string();
+  auto m =
+      run(fmt::format("vdb make cloud --out {} --voxel-size 0.1 --size 1 1 1 --frames 0:2 --move 0.2 0 -0.1 "
+                      "--velocity --fps 10",
+                      pattern));
+  ASSERT_EQ(m.code, 0) << m.out;
+  double x0 = 0;
+  for (int f = 0; f <= 2; ++f) {
+    auto i = run(fmt::format("vdb info {} --json", (dir / fmt::format("smoke_{:02d}.vdb", f)).string()));
+    ASSERT_EQ(i.code, 0) << i.out;
+    auto j = nlohmann::json::parse(i.out);
+    ASSERT_EQ(j.size(), 4u);
+    EXPECT_EQ(j[0]["name"], "density");
+    const double x = j[0]["world_min"][0].get<double>();
+    if (f == 0) x0 = x;
+    EXPECT_NEAR(x - x0, 0.2 * f, 1e-9);
+    const double want[3] = {2, 0, -1};
+    for (int c = 0; c < 3; ++c) {
+      EXPECT_EQ(j[c + 1]["name"], std::string("vel.") + "xyz"[c]);
+      EXPECT_NEAR(j[c + 1]["value_min"].get<double>(), want[c], 1e-6);
+      EXPECT_NEAR(j[c + 1]["value_max"].get<double>(), want[c], 1e-6);
+    }
+  }
+  std::string s = write("moving.json", R"({"media": [{"file": "smoke_##.vdb", "velocity": {"grid": "vel"}}],
+    "lights": {"sun": {}}, "render": {"width": 16, "height": 12, "spp": 2, "fps": 10, "frames": "0:2"}})");
+  auto r = run(fmt::format("render {} --out {}", s, (dir / "o").string()));
+  EXPECT_EQ(r.code, 0) << r.out;
+  std::string bad = write("bad.json", R"({"media": [{"file": "smoke_##.vdb", "velocity": {"grid": "v"}}],
+    "render": {"frames": "0:1"}})");
+  expect_one_line_error(run(fmt::format("render {} --out {}", bad, (dir / "o2").string())),
+                        "media[0].velocity.grid");
+  expect_one_line_error(run(fmt::format("vdb make cloud --out {} --frames 0:2", (dir / "x.vdb").string())),
+                        "run of #");
+  expect_one_line_error(run(fmt::format("vdb make cloud --out {}", (dir / "x_#.vdb").string())), "--frames");
+}
+
 TEST_F(Cli, PipelineCacheFileIsWritten) {
   std::string cache = (dir / "pipelines.bin").string();
   auto r =
@@ -821,8 +860,10 @@ TEST_F(Cli, CompareImagesAndSequences) {
 }
 
 TEST_F(Cli, BenchReportsRatiosAsJson) {
-  auto r =
-      run("bench --json --size 16x16 --spp 1 --denoise-sizes 24x16 --guiding-size 16x12 --guiding-seeds 1");
+  auto r = run(fmt::format(
+      "bench --json --size 16x16 --spp 1 --denoise-sizes 24x16 --guiding-size 16x12 --guiding-seeds 1 "
+      "--shafts-size 24x16 --shafts-frames 2 --shafts-reference-spp 4 --reference-dir {}",
+      (dir / "refs").string()));
   ASSERT_EQ(r.code, 0) << r.out;
   auto j = nlohmann::json::parse(r.out.substr(r.out.find('{')));
   EXPECT_GT(j["passes"]["trace"]["ratio_to_copy"].get<double>(), 0.0);
@@ -832,8 +873,13 @@ TEST_F(Cli, BenchReportsRatiosAsJson) {
     EXPECT_GT(j["svgf_surface"]["24x16"][kernel]["total"]["ratio_to_copy"].get<double>(), 0.0) << kernel;
   for (const auto& e : j["guiding"]["equal_time"])
     EXPECT_GT(e["relmse_ratio_unguided_over_guided"]["mean"].get<double>(), 0.0);
-  EXPECT_GT(j["guiding"]["volume_denoiser"]["relmse_ratio_surface_motion_over_virtual_points"].get<double>(),
-            0.0);
+  for (const char* key : {"volume_denoiser", "volume_occluder"})
+    for (const char* ratio :
+         {"relmse_surface_motion_over_virtual_points", "relmse_backward_over_virtual_points",
+          "relmse_surface_geometry_over_virtual_points"})
+      EXPECT_GT(j["guiding"][key][ratio]["ratio_of_means"].get<double>(), 0.0) << key << " " << ratio;
+  EXPECT_EQ(j["shafts"]["per_frame"].size(), 2u);
+  EXPECT_GT(j["shafts"]["per_frame"][1]["flip_ldr"]["composite"].get<double>(), 0.0);
 }
 
 }  // namespace

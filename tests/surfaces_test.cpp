@@ -12,6 +12,7 @@
 #include <fstream>
 #include <functional>
 #include <glm/gtc/matrix_transform.hpp>
+#include <glm/gtc/packing.hpp>
 #include <glm/gtx/component_wise.hpp>
 #include <iostream>
 #include <limits>
@@ -20,9 +21,11 @@
 #include <thread>
 
 #include "gpu/gpu.hpp"
+#include "shaders/glsl.hpp"
 #include "surfaces/bvh.hpp"
 #include "surfaces/embree_ref.hpp"
 #include "surfaces/mesh.hpp"
+#include "surfaces/scene_geometry.hpp"
 #include "surfaces/texture.hpp"
 
 namespace haze::surfaces {
@@ -877,6 +880,61 @@ TEST_F(Gpu, InvalidRaysAndEmptyBvhMiss) {
     EXPECT_NE(none[i].t_uv.w, 1.0f) << "ray " << i;
     EXPECT_NE(none_occ[i].t_uv.w, 1.0f) << "ray " << i;
   }
+}
+
+// Shading normals are kept only for meshes whose vertex normals differ from their triangles' normals (the
+// sphere, an OBJ with smooth vn), per BVH triangle in leaf order, in world space; a triangle with a zero
+// vertex normal shades with its geometric normal, and a note says how many.
+TEST(SceneGeometry, ShadingNormalsOnlyWhereMeshesAreSmooth) {
+  EXPECT_FALSE(smooth_normals(box(glm::vec3(1, 2, 3))));
+  EXPECT_FALSE(smooth_normals(plane(glm::vec2(2, 1))));
+  EXPECT_FALSE(smooth_normals(window(1, 1, 0.1f, 4, 0.02f, 30)));
+  EXPECT_TRUE(smooth_normals(sphere(1, 8)));
+  auto geometry = [](const nlohmann::json& surfaces) {
+    return build_geometry(scene::from_json({{"surfaces", surfaces}}, "scene.json", ""));
+  };
+  const SceneGeometry flat = geometry({{{"mesh", {{"kind", "box"}}}}, {{"mesh", {{"kind", "plane"}}}}});
+  EXPECT_TRUE(flat.triangle_normals.empty());
+
+  // A sphere turned by 90 degrees about z next to a box: the box's triangles carry no normals, the
+  // sphere's carry its radial directions turned likewise.
+  const SceneGeometry g = geometry({{{"mesh", {{"kind", "box"}}}},
+                                    {{"mesh", {{"kind", "sphere"}, {"segments", 8}}},
+                                     {"transform", {{"rotate", {0, 0, 90}}, {"translate", {5, 0, 0}}}}}});
+  ASSERT_EQ(g.triangle_normals.size(), g.bvh.triangles.size());
+  size_t sphere_triangles = 0;
+  for (size_t k = 0; k < g.bvh.triangles.size(); ++k) {
+    const glsl::GpuTriangle& t = g.bvh.triangles[k];
+    const glm::uvec4 n = g.triangle_normals[k].n012;
+    if (instance_id(t) == 0) {
+      EXPECT_EQ(n, glm::uvec4(0));
+      continue;
+    }
+    ++sphere_triangles;
+    EXPECT_EQ(n.w, 1u);
+    const glm::vec3 corner[3] = {glm::vec3(t.v0), glm::vec3(t.v1), glm::vec3(t.v2)};
+    for (int i = 0; i < 3; ++i) {
+      const glm::vec3 decoded = glsl::oct_decode(glm::unpackSnorm2x16(n[i]));
+      EXPECT_GT(glm::dot(decoded, glm::normalize(corner[i] - glm::vec3(5, 0, 0))), 0.99999f) << k << " " << i;
+    }
+  }
+  EXPECT_EQ(sphere_triangles, sphere(0.5f, 8).triangles.size());
+
+  // An OBJ with one zero normal: its triangle falls back to the geometric normal and is counted.
+  const auto dir = temp_root() / "normals";
+  std::filesystem::create_directories(dir);
+  std::ofstream(dir / "zero_vn.obj") << "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\n"
+                                        "vn 0 0 1\nvn 0.2 0 1\nvn 0 0 0\n"
+                                        "f 1//1 2//2 3//1\nf 2//2 4//3 3//1\n";
+  const SceneGeometry z = geometry({{{"file", (dir / "zero_vn.obj").string()}}});
+  ASSERT_EQ(z.triangle_normals.size(), 2u);
+  int set = 0;
+  for (const auto& t : z.triangle_normals) set += int(t.n012.w);
+  EXPECT_EQ(set, 1);
+  ASSERT_EQ(z.notes.size(), 1u);
+  EXPECT_NE(z.notes[0].find("surfaces[0]: 1 triangles have a zero or non-finite vertex normal"),
+            std::string::npos)
+      << z.notes[0];
 }
 
 }  // namespace

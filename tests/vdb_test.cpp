@@ -251,6 +251,101 @@ TEST_F(VdbTest, VectorGridIsRejected) {
   expect_error([&] { write_grids({v}, path("v.vdb")); }, {path("v.vdb"), "vec3s", "float or half"});
 }
 
+// The fixture tests/data/vel.vdb: one vec3s grid "vel" with voxel (0, 0, 0) = (1, 2, 3) (OpenVDB 10).
+TEST_F(VdbTest, VelocityVec3sGridSplitsIntoComponents) {
+  VelocityGrids v = load_velocity(HAZE_TEST_DATA "/vel.vdb", "vel", "media[0].velocity.grid");
+  EXPECT_EQ(v.layout, "vec3s");
+  for (int c = 0; c < 3; ++c) {
+    Sampler smp(v.c[c]);
+    EXPECT_EQ(smp.voxel({0, 0, 0}), float(c + 1)) << c;
+    EXPECT_EQ(smp.voxel({1, 0, 0}), 0.f) << c;
+    EXPECT_EQ(v.c[c].active_voxels, 1u);
+    // Half-way to the neighbour: trilinear weights as for the density.
+    EXPECT_FLOAT_EQ(smp.trilinear({0.5, 0, 0}), 0.5f * float(c + 1));
+  }
+}
+
+// tests/data/vel_staggered.vdb: a staggered vec3s grid "vel", voxel size 0.5, (0,0,0) = (1,2,3) and
+// (1,0,0) = (4,5,6) (written once with OpenVDB 10). Component c lives on the voxel's lower face along c.
+// Injected defect caught: the shift ignored (each component at the voxel centre).
+TEST_F(VdbTest, VelocityStaggeredComponentsSitOnFaces) {
+  VelocityGrids v = load_velocity(HAZE_TEST_DATA "/vel_staggered.vdb", "vel", "k");
+  EXPECT_EQ(v.layout, "vec3s staggered");
+  for (int c = 0; c < 3; ++c) {
+    Sampler smp(v.c[c]);
+    EXPECT_EQ(smp.voxel({0, 0, 0}), float(c + 1));
+    EXPECT_EQ(smp.voxel({1, 0, 0}), float(c + 4));
+    // Voxel (0,0,0)'s component c sits at world -0.25 along axis c (half of the 0.5 voxel), 0 elsewhere.
+    glm::dvec4 at = v.c[c].index_to_world * glm::dvec4(0, 0, 0, 1);
+    for (int a = 0; a < 3; ++a) EXPECT_EQ(at[a], a == c ? -0.25 : 0.0) << c << " " << a;
+  }
+}
+
+TEST_F(VdbTest, VelocityFloatComponentsAndErrors) {
+  auto comp = [](const std::string& name, float value, glm::dvec3 offset) {
+    VoxelGrid g;
+    g.name = name;
+    g.index_to_world = glm::translate(glm::dmat4(1), offset) * glm::scale(glm::dmat4(1), glm::dvec3(0.5));
+    g.boxes.push_back({glm::ivec3(-2), glm::ivec3(3), value});
+    return g;
+  };
+  // Components with transforms of their own (a staggered export writes them so).
+  write_grids({comp("density", 1, {}), comp("vel.x", 1.5f, {-0.25, 0, 0}), comp("vel.y", -2, {0, -0.25, 0}),
+               comp("vel.z", 0.25f, {0, 0, -0.25})},
+              path("xyz.vdb"));
+  VelocityGrids v = load_velocity(path("xyz.vdb"), "vel", "media[0].velocity.grid");
+  EXPECT_EQ(v.layout, "float x/y/z");
+  const float want[3] = {1.5f, -2.f, 0.25f};
+  for (int c = 0; c < 3; ++c) {
+    EXPECT_EQ(Sampler(v.c[c]).voxel({1, 1, 1}), want[c]);
+    EXPECT_EQ(v.c[c].index_to_world[3][c], -0.25);
+    EXPECT_EQ(v.c[c].active_voxels, 216u);
+  }
+  check_velocity_name(path("xyz.vdb"), "vel", "media[0].velocity.grid");
+  // Neither a grid "v" nor v.x/y/z: the message names the key, the file and the grids present.
+  expect_error([&] { check_velocity_name(path("xyz.vdb"), "v", "media[0].velocity.grid"); },
+               {"media[0].velocity.grid", path("xyz.vdb"), "'v'", "'v.x'", "'vel.x'", "'density'"});
+  expect_error([&] { load_velocity(path("xyz.vdb"), "v", "media[0].velocity.grid"); },
+               {"media[0].velocity.grid", "no velocity grid"});
+  // A float grid is not a vector grid.
+  expect_error([&] { load_velocity(path("xyz.vdb"), "density", "media[2].velocity.grid"); },
+               {"media[2].velocity.grid", "'density'", "type float", "vec3s"});
+  // Only two of the three components.
+  write_grids({comp("vel.x", 1, {}), comp("vel.y", 1, {})}, path("xy.vdb"));
+  expect_error([&] { load_velocity(path("xy.vdb"), "vel", "k"); }, {"k", "'vel.z'", "grids present"});
+}
+
+// A procedural volume written with an offset and a velocity: the density's transform is translated (the
+// voxels stay), and vel.x/y/z hold the velocity over the density's active box dilated by two voxels.
+TEST_F(VdbTest, ProceduralWithOffsetAndVelocity) {
+  ProceduralSpec spec;
+  spec.kind = "cloud";
+  spec.voxel_size = 0.1;
+  spec.size = glm::dvec3(1.2);
+  spec.falloff = 0.2;
+  ProceduralExtras extras;
+  extras.offset = glm::dvec3(0.37, -1.1, 2);
+  extras.velocity = glm::dvec3(0.5, -0.25, 3);
+  write_procedural(spec, path("moved.vdb"), extras);
+  write_procedural(spec, path("still.vdb"));
+  DeviceGrid moved = load_grid(path("moved.vdb"), "density");
+  DeviceGrid still = load_grid(path("still.vdb"), "density");
+  EXPECT_EQ(moved.nanovdb.size(), still.nanovdb.size());
+  EXPECT_EQ(moved.index_min, still.index_min);
+  for (int a = 0; a < 3; ++a)
+    EXPECT_NEAR(moved.index_to_world[3][a] - still.index_to_world[3][a], extras.offset[a], 1e-12);
+  VelocityGrids v = load_velocity(path("moved.vdb"), "vel", "k");
+  for (int c = 0; c < 3; ++c) {
+    for (int i = 0; i < 4; ++i)
+      for (int k = 0; k < 4; ++k) EXPECT_NEAR(v.c[c].index_to_world[i][k], moved.index_to_world[i][k], 1e-15);
+    EXPECT_EQ(v.c[c].index_min, moved.index_min - 2);
+    EXPECT_EQ(v.c[c].index_max, moved.index_max + 2);
+    Sampler smp(v.c[c]);
+    EXPECT_EQ(smp.trilinear(glm::dvec3(moved.index_max) + 0.7), float((*extras.velocity)[c]));
+    EXPECT_EQ(smp.voxel(moved.index_max + 3), 0.f);
+  }
+}
+
 TEST_F(VdbTest, MissingGridListsNames) {
   write_grids({grid({{{0, 0, 0}, 1.f}}), grid({{{0, 0, 0}, 1.f}}, "temperature")}, path("two.vdb"));
   auto infos = inspect(path("two.vdb"));

@@ -8,6 +8,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <functional>
 #include <glm/gtc/matrix_transform.hpp>
 #include <iostream>
 #include <limits>
@@ -15,8 +16,13 @@
 #include <optional>
 
 #include "render/renderer.hpp"
+#include "render/run.hpp"
+#include "scene/animation.hpp"
 #include "shaders/glsl.hpp"
+#include "temp_dir.hpp"
 #include "test_util.hpp"
+#include "vdb/vdb.h"
+#include "volume/media.hpp"
 
 namespace haze::test {
 namespace {
@@ -55,6 +61,7 @@ struct Case {
   Cam prev, cur;
   std::vector<float> depth;  // per previous pixel
   std::vector<Box> media;
+  std::function<glm::dvec3(glm::dvec3)> move;  // when set, moves every point (instead of the boxes)
 
   Case(int w, int h, double tan_y = 0.4) : W(w), H(h), depth(size_t(w) * h, 0.f) {
     prev.tan_y = cur.tan_y = tan_y;
@@ -117,6 +124,7 @@ Expected reference(const Case& s) {
       const double d = s.depth[p];
       if (!(d > 0) || !std::isfinite(d)) continue;
       glm::dvec3 X = s.prev.pos + d * s.prev_ray(x, y);
+      if (s.move) X = s.move(X);
       for (const Box& b : s.media) {
         glm::dvec3 m = glm::min(glm::abs(X - b.lo), glm::abs(X - b.hi));
         if (glm::min(m.x, glm::min(m.y, m.z)) < 1e-4) e.ambiguous = true;
@@ -151,8 +159,11 @@ Expected reference(const Case& s) {
 
 // Runs the pass on a Case, on `vm` when given (a new instance otherwise). The depth sits at offset 1 of 3
 // floats per pixel (the others hold garbage), as when the caller points into a layer of a wider buffer.
+// `motion` and `velocity_grids` replace the boxes' media motion when given.
 std::vector<glm::vec4> run(const Case& s, guiding::VolumeMotion* vm = nullptr,
-                           bool media_buffer_without_media = false, gpu::Timer* timer = nullptr) {
+                           bool media_buffer_without_media = false, gpu::Timer* timer = nullptr,
+                           const std::vector<MediumMotion>* motion = nullptr,
+                           const gpu::Buffer* velocity_grids = nullptr) {
   gpu::Context& ctx = context();
   const size_t n = size_t(s.W) * s.H;
   glsl::GpuScene gs = gpu_scene(s);
@@ -185,6 +196,7 @@ std::vector<glm::vec4> run(const Case& s, guiding::VolumeMotion* vm = nullptr,
   // An entry that would move every point, passed with count 0: nothing may move.
   if (media.empty() && media_buffer_without_media)
     media.push_back({glm::translate(glm::mat4(1), glm::vec3(5)), glm::vec4(-100), glm::vec4(100)});
+  if (motion) media = *motion;
   gpu::Buffer media_buf;
   if (!media.empty()) {
     media_buf = gpu::Buffer(ctx, "test media motion", "test", media.size() * sizeof(MediumMotion));
@@ -193,8 +205,14 @@ std::vector<glm::vec4> run(const Case& s, guiding::VolumeMotion* vm = nullptr,
 
   std::unique_ptr<guiding::VolumeMotion> own;
   if (!vm) vm = (own = std::make_unique<guiding::VolumeMotion>(ctx, s.W, s.H)).get();
-  guiding::VolumeMotionInputs in{
-      &scene, &prev_depth, 3, 1, &gbuffer, media.empty() ? nullptr : &media_buf, uint32_t(s.media.size())};
+  guiding::VolumeMotionInputs in{&scene,
+                                 &prev_depth,
+                                 3,
+                                 1,
+                                 &gbuffer,
+                                 media.empty() ? nullptr : &media_buf,
+                                 uint32_t(motion ? motion->size() : s.media.size()),
+                                 velocity_grids};
   ctx.submit_and_wait([&](VkCommandBuffer cmd) {
     if (timer) timer->reset(cmd);
     vm->run(cmd, timer, in);
@@ -385,6 +403,186 @@ TEST(VolumeMotion, MovingMediaCarryTheirPoints) {
   s.media.clear();
   e = reference(s);
   EXPECT_EQ(compare(s, run(s, &vm, true), e), 0);
+  EXPECT_EQ(context().validation_messages(), 0u);
+}
+
+// A medium whose file holds a linear velocity field v(o) = A o + b (object space, units per second) as
+// float grids vel.x/y/z: trilinear interpolation reproduces it exactly, so each previous point X moves to
+// T_now (o + dt scale v(o)) with o = T_prev^-1 X and dt = 1 / fps, which the reference computes in double.
+// The medium's transform changes between the frames too, and the camera moves. The host side
+// (build_velocity, media_motion) and the pass together.
+// Injected defects caught (pixels wrong of the ~850 landed): the velocity read at the point's world position
+// instead of its grid index position (731), the displacement left in object space, unscaled (754), unit
+// "second" taken as per frame (731).
+TEST(VolumeMotion, VelocityGridMovesPointsWithTheField) {
+  haze::test::TempDir dir("haze_volume_motion_test");
+  const glm::dmat3 A(glm::dvec3(0.05, 0.02, -0.03), glm::dvec3(-0.04, 0.06, 0.01),
+                     glm::dvec3(0.02, -0.05, 0.04));
+  const glm::dvec3 b(0.3, -0.2, 0.1);
+  vdb::VoxelGrid density, vel[3];
+  const char* names[3] = {"vel.x", "vel.y", "vel.z"};
+  density.index_to_world = glm::scale(glm::dmat4(1), glm::dvec3(0.5));
+  density.boxes.push_back({glm::ivec3(-10), glm::ivec3(10), 1.f});
+  for (int c = 0; c < 3; ++c) {
+    vel[c].name = names[c];
+    vel[c].index_to_world = density.index_to_world;
+  }
+  for (int i = -10; i <= 10; ++i)
+    for (int j = -10; j <= 10; ++j)
+      for (int k = -10; k <= 10; ++k) {
+        const glm::dvec3 v = A * (0.5 * glm::dvec3(i, j, k)) + b;
+        for (int c = 0; c < 3; ++c) vel[c].voxels.push_back({{i, j, k}, float(v[c])});
+      }
+  const std::string file = (dir.path() / "field.vdb").string();
+  vdb::write_grids({density, vel[0], vel[1], vel[2]}, file);
+  auto scene_with = [&](glm::vec3 translate, float rotate_y) {
+    nlohmann::json m = {{"file", file},
+                        {"velocity", {{"grid", "vel"}, {"scale", 2}, {"unit", "second"}}},
+                        {"transform",
+                         {{"translate", {translate.x, translate.y, translate.z}},
+                          {"rotate", {0, rotate_y, 0}},
+                          {"scale", {1.5, 1.5, 1.5}}}}};
+    return make_scene({{"media", {m}}, {"render", {{"fps", 2}}}});
+  };
+  const scene::Scene prev = scene_with({0.3f, -0.2f, 5.f}, 20.f), now = scene_with({0.5f, -0.1f, 5.f}, 22.f);
+  const volume::DeviceMedia dm = volume::build_media(now);
+  const volume::DeviceVelocity dv = volume::build_velocity(prev);
+  ASSERT_EQ(dv.grids.size(), 3u);
+  const std::vector<MediumMotion> motion = volume::media_motion(now, prev, dm, dv);
+  ASSERT_EQ(motion.size(), 1u);
+  EXPECT_EQ(motion[0].velocity, glm::uvec4(0, 1, 2, 1));
+  volume::DeviceGrids grids;
+  grids.update(context(), dv, true);
+
+  const glm::dmat4 T_prev(prev.media[0].transform.matrix()), T_now(now.media[0].transform.matrix());
+  const double dt_scale = 2.0 / 2.0;  // scale / fps
+  Case s(37, 23);
+  s.plane(5);
+  s.cur.pos = glm::dvec3(0.05, 0.02, -0.1);
+  s.move = [&](glm::dvec3 X) {
+    const glm::dvec3 o(glm::inverse(T_prev) * glm::dvec4(X, 1));
+    return glm::dvec3(T_now * glm::dvec4(o + dt_scale * (A * o + b), 1));
+  };
+  Expected e = reference(s);
+  ASSERT_FALSE(e.ambiguous);
+  EXPECT_GT(e.landed, s.W * s.H / 2);
+  std::vector<glm::vec4> out = run(s, nullptr, false, nullptr, &motion, &grids.table());
+  EXPECT_EQ(compare(s, out, e), 0);
+  // The field moves the points by pixels, not by rounding: without it they land elsewhere.
+  Case rigid = s;
+  rigid.move = [&](glm::dvec3 X) { return glm::dvec3(T_now * glm::inverse(T_prev) * glm::dvec4(X, 1)); };
+  Expected er = reference(rigid);
+  double shift = 0;
+  int both = 0;
+  for (size_t t = 0; t < er.value.size(); ++t)
+    if (e.value[t].w > 0 && er.value[t].w > 0) {
+      shift += glm::length(glm::dvec2(e.value[t]) - glm::dvec2(er.value[t]));
+      ++both;
+    }
+  EXPECT_GT(shift / both, 2.0);
+  EXPECT_EQ(context().validation_messages(), 0u);
+}
+
+// The sequence `haze vdb make cloud --frames 0:2 --move ... --velocity` writes: a cloud translating by D per
+// frame with a velocity grid equal to that motion, rendered by the renderer with the volume denoiser's
+// virtual points. Every landed pixel's volume motion matches the analytic motion of its previous virtual
+// point (X -> X + D, the camera still): measured within 1.2e-5 px (the issue asks for 0.5 px). Without the
+// velocity key the medium's transform does not change, so the points do not move and the motion is off by
+// the cloud's, a median 3.0 px (what the renderer did before velocity).
+// Injected defects caught: velocity grids not loaded for a frame that follows a rendered one (the
+// renderer's velocity flag false): median error 3.0 px; the velocity read at the world position: 3.0 px;
+// unit "second" taken as per frame: 24 times the motion.
+TEST(VolumeMotion, VelocitySequenceMatchesTheAnalyticMotion) {
+  haze::test::TempDir dir("haze_volume_motion_test");
+  vdb::ProceduralSpec spec;
+  spec.kind = "cloud";
+  spec.voxel_size = 0.04;
+  spec.center = {0, 1, 0};
+  spec.size = glm::dvec3(1.2);
+  spec.density = 6;
+  spec.falloff = 0.3;
+  const glm::dvec3 D(0.1, 0.02, 0);  // world units per frame
+  const double fps = 24;
+  std::vector<vdb::ProceduralFile> files;
+  for (int f = 0; f < 3; ++f)
+    files.push_back({(dir.path() / fmt::format("blob_{:04d}.vdb", f)).string(), D * double(f)});
+  vdb::write_procedural(spec, files, D * fps);
+
+  auto run_sequence = [&](bool velocity) {
+    nlohmann::json m = {{"file", (dir.path() / "blob_####.vdb").string()}, {"albedo", {0.9, 0.9, 0.9}}};
+    if (velocity) m["velocity"] = {{"grid", "vel"}};
+    nlohmann::json j = {
+        {"camera", {{"position", {0, 1, 4}}, {"target", {0, 1, 0}}, {"fov_y", 30}}},
+        {"media", {m}},
+        {"lights", {{"sun", {{"direction", {0.3, 1, 0.2}}, {"irradiance", 4}}}}},
+        {"render", {{"width", 80}, {"height", 60}, {"spp", 4}, {"fps", fps}, {"frames", "0:2"}}},
+        // Geometry "surface": the points projected are then the last frame's own virtual point depths, which
+        // this test rebuilds them from (with the volume instance's own geometry it projects the depth it
+        // accumulated, docs/guiding.md).
+        {"denoise",
+         {{"volume", {{"enabled", true}, {"geometry", "surface"}}}, {"volume_motion", "virtual_points"}}},
+        {"guiding", {{"enabled", true}}}};
+    scene::Scene s = make_scene(j);
+    std::unique_ptr<render::Renderer> r;
+    std::vector<render::Image> frames;
+    for (int f = 0; f < 3; ++f) {
+      render::use_frame(context(), r, s, f, f == 0);
+      r->add_samples(s.render.spp);
+      frames.push_back(r->resolve());
+    }
+    return std::make_pair(s, frames);
+  };
+
+  // Each frame's cloud: the world box of its voxel centres, one voxel wider (the trilinear support).
+  glm::dvec3 box[3][2];
+  for (int f = 0; f < 3; ++f) {
+    const vdb::DeviceGrid g = vdb::load_grid(files[size_t(f)].path, "density");
+    box[f][0] = glm::dvec3(g.index_to_world * glm::dvec4(glm::dvec3(g.index_min) - 1.0, 1));
+    box[f][1] = glm::dvec3(g.index_to_world * glm::dvec4(glm::dvec3(g.index_max) + 1.0, 1));
+  }
+  for (bool velocity : {true, false}) {
+    auto [s, frames] = run_sequence(velocity);
+    const render::CameraBasis cb = render::camera_basis(s.camera, s.render);
+    const glm::vec2 size(float(s.render.width), float(s.render.height));
+    std::vector<double> errors;
+    for (int f = 1; f < 3; ++f) {
+      const render::Image& prev = frames[size_t(f - 1)];
+      const render::Image& cur = frames[size_t(f)];
+      ASSERT_EQ(cur.volume_motion.size(), size_t(cur.width) * cur.height);
+      for (int y = 0; y < cur.height; ++y)
+        for (int x = 0; x < cur.width; ++x) {
+          const glm::vec4 m = cur.volume_motion[size_t(y) * cur.width + x];
+          if (m.w == 0) continue;
+          // The source pixel: its centre lies within half a pixel of this one's centre plus the motion.
+          const int sx = int(std::lround(x + m.x)), sy = int(std::lround(y + m.y));
+          if (sx < 0 || sy < 0 || sx >= prev.width || sy >= prev.height) continue;
+          const glm::vec2 src(float(sx) + 0.5f, float(sy) + 0.5f);
+          const double d = prev.at(sx, sy, glsl::OUT_VPDEPTH);
+          const glm::dvec3 ray(glsl::camera_direction(glm::vec3(cb.right), glm::vec3(cb.up),
+                                                      glm::vec3(cb.forward), src, size));
+          const glm::dvec3 X = glm::dvec3(cb.position) + d * ray + D;
+          const glm::vec2 q =
+              glsl::camera_project_direction(glm::vec3(cb.right), glm::vec3(cb.up), glm::vec3(cb.forward),
+                                             glm::vec3(X - glm::dvec3(cb.position)), size);
+          // Points of the cloud only (a pixel without volume light falls back to the guide's or the surface's
+          // depth, which may lie in empty space, where nothing moves).
+          if (glm::any(glm::lessThan(X - D, box[f - 1][0])) ||
+              glm::any(glm::greaterThan(X - D, box[f - 1][1])))
+            continue;
+          errors.push_back(glm::length(glm::dvec2(m) - glm::dvec2(src - q)));
+        }
+    }
+    ASSERT_GT(errors.size(), 400u);
+    std::sort(errors.begin(), errors.end());
+    const double median = errors[errors.size() / 2], worst = errors.back();
+    std::cout << "  " << (velocity ? "velocity" : "rigid only") << ": " << errors.size()
+              << " landed pixels, |motion - analytic| median " << median << " px, max " << worst << " px\n";
+    if (velocity) {
+      EXPECT_LT(worst, 1e-4);  // measured 1.2e-5 px (float rounding); the issue asks for 0.5 px
+    } else {
+      EXPECT_GT(median, 2.0);
+    }
+  }
   EXPECT_EQ(context().validation_messages(), 0u);
 }
 

@@ -157,8 +157,8 @@ DeviceGrid to_device(openvdb::FloatGrid& grid, const std::string& where, NanPoli
                     "to replace them by 0",
                     where, name, bad));
   if (grid.activeVoxelCount() == 0)
-    throw Error(fmt::format("{}: grid '{}' is empty (no active voxels); pick a grid that holds density",
-                            where, name));
+    throw Error(
+        fmt::format("{}: grid '{}' is empty (no active voxels); pick a grid that holds values", where, name));
 
   DeviceGrid d;
   d.name = name;
@@ -298,15 +298,15 @@ void check_grid_name(const std::string& path, const std::string& grid_name, cons
   require_grid(*open_file(path), path, grid_name, key);
 }
 
-DeviceGrid load_grid(const std::string& path, const std::string& grid_name, NanPolicy nan,
-                     const std::string& key) {
-  auto file = open_file(path);
-  require_grid(*file, path, grid_name, key);
-  openvdb::GridBase::Ptr base;
+namespace {
+
+// Reads grid `grid_name` of an open file (present: require_grid checked it), within the read budget.
+openvdb::GridBase::Ptr read_grid(openvdb::io::File& file, const std::string& path,
+                                 const std::string& grid_name) {
   try {
     ReadBudget budget(file_size(path));
     try {
-      base = file->readGrid(grid_name);
+      return file.readGrid(grid_name);
     } catch (const std::bad_alloc&) {
       throw over_budget(path, budget);
     }
@@ -316,6 +316,15 @@ DeviceGrid load_grid(const std::string& path, const std::string& grid_name, NanP
     throw Error(fmt::format("{}: cannot read grid '{}' ({}); the file may be corrupt", path, grid_name,
                             one_line(e.what())));
   }
+}
+
+}  // namespace
+
+DeviceGrid load_grid(const std::string& path, const std::string& grid_name, NanPolicy nan,
+                     const std::string& key) {
+  auto file = open_file(path);
+  require_grid(*file, path, grid_name, key);
+  openvdb::GridBase::Ptr base = read_grid(*file, path, grid_name);
   auto grid = openvdb::gridPtrCast<openvdb::FloatGrid>(base);
   if (!grid)
     throw Error(
@@ -323,6 +332,86 @@ DeviceGrid load_grid(const std::string& path, const std::string& grid_name, NanP
                     "another grid or convert it",
                     path, grid_name, type_name(*base)));
   return to_device(*grid, path, nan);
+}
+
+namespace {
+
+// Which grids hold velocity `name`: the grid itself (true), else its components name.x, .y, .z (false).
+bool velocity_is_vector(const openvdb::io::File& file, const std::string& path, const std::string& name,
+                        const std::string& key) {
+  std::vector<std::string> names = grid_names(file);
+  auto has = [&](const std::string& n) { return std::find(names.begin(), names.end(), n) != names.end(); };
+  if (has(name)) return true;
+  if (has(name + ".x") && has(name + ".y") && has(name + ".z")) return false;
+  throw Error(fmt::format(
+      "{}: {}: no velocity grid '{}' (a vec3s grid) nor float grids '{}.x', '{}.y', '{}.z' (grids present: "
+      "{}); set {} to one of these or remove the velocity",
+      key, path, name, name, name, name,
+      names.empty() ? std::string("none") : fmt::format("'{}'", fmt::join(names, "', '")), key));
+}
+
+}  // namespace
+
+void check_velocity_name(const std::string& path, const std::string& grid_name, const std::string& key) {
+  velocity_is_vector(*open_file(path), path, grid_name, key);
+}
+
+VelocityGrids load_velocity(const std::string& path, const std::string& grid_name, const std::string& key) {
+  auto file = open_file(path);
+  VelocityGrids v;
+  const char* axes[3] = {"x", "y", "z"};
+  if (!velocity_is_vector(*file, path, grid_name, key)) {
+    v.layout = "float x/y/z";
+    for (int c = 0; c < 3; ++c) {
+      const std::string name = grid_name + "." + axes[c];
+      openvdb::GridBase::Ptr base = read_grid(*file, path, name);
+      auto grid = openvdb::gridPtrCast<openvdb::FloatGrid>(base);
+      if (!grid)
+        throw Error(fmt::format("{}: {}: grid '{}' has type {}; velocity components are float grids", key,
+                                path, name, type_name(*base)));
+      v.c[c] = to_device(*grid, path, NanPolicy::Zero);
+      v.nan_voxels += v.c[c].nan_voxels;
+    }
+    return v;
+  }
+  openvdb::GridBase::Ptr base = read_grid(*file, path, grid_name);
+  auto vec = openvdb::gridPtrCast<openvdb::Vec3SGrid>(base);
+  if (!vec)
+    throw Error(fmt::format(
+        "{}: {}: grid '{}' has type {}; a velocity grid is vec3s, or float grids '{}.x', '{}.y', '{}.z'", key,
+        path, grid_name, type_name(*base), grid_name, grid_name, grid_name));
+  const bool staggered = vec->getGridClass() == openvdb::GRID_STAGGERED;
+  v.layout = staggered ? "vec3s staggered" : "vec3s";
+  const openvdb::Vec3STree& tree = vec->tree();
+  for (int c = 0; c < 3; ++c) {
+    // The component as a float grid of the same topology: every leaf's values (active or not, which the
+    // trilinear lookup reads alike) and mask, then the active tiles above the leaves.
+    auto comp = openvdb::FloatGrid::create(tree.background()[c]);
+    comp->setName(grid_name + "." + axes[c]);
+    comp->setTransform(vec->transform().copy());
+    for (auto leaf = tree.cbeginLeaf(); leaf; ++leaf) {
+      auto* dst = comp->tree().touchLeaf(leaf->origin());
+      for (openvdb::Index i = 0; i < openvdb::Vec3STree::LeafNodeType::SIZE; ++i)
+        dst->setValueOnly(i, leaf->getValue(i)[c]);
+      dst->setValueMask(leaf->getValueMask());
+    }
+    auto tile = tree.cbeginValueOn();
+    tile.setMaxDepth(tree.treeDepth() - 2);
+    for (; tile; ++tile) {
+      openvdb::CoordBBox b;
+      tile.getBoundingBox(b);
+      comp->tree().fill(b, (*tile)[c], true);
+    }
+    v.c[c] = to_device(*comp, path, NanPolicy::Zero);
+    v.nan_voxels += v.c[c].nan_voxels;
+    if (staggered) {
+      // Component c is stored on the voxel's lower face along axis c.
+      glm::dmat4 shift(1.0);
+      shift[3][c] = -0.5;
+      v.c[c].index_to_world = v.c[c].index_to_world * shift;
+    }
+  }
+  return v;
 }
 
 DeviceGrid make_procedural(const ProceduralSpec& spec) {
@@ -381,6 +470,10 @@ openvdb::FloatGrid::Ptr voxel_grid(const VoxelGrid& v) {
   auto grid = openvdb::FloatGrid::create(v.background);
   grid->setName(v.name);
   grid->setTransform(to_transform(v.index_to_world, v.name));
+  for (const VoxelGrid::Box& b : v.boxes)
+    grid->fill(
+        openvdb::CoordBBox(openvdb::Coord(b.lo.x, b.lo.y, b.lo.z), openvdb::Coord(b.hi.x, b.hi.y, b.hi.z)),
+        b.value, true);
   auto acc = grid->getAccessor();
   for (const auto& [ijk, x] : v.voxels) acc.setValue(openvdb::Coord(ijk.x, ijk.y, ijk.z), x);
   return grid;
@@ -388,8 +481,38 @@ openvdb::FloatGrid::Ptr voxel_grid(const VoxelGrid& v) {
 
 }  // namespace
 
-void write_procedural(const ProceduralSpec& spec, const std::string& out_path) {
-  write_file({build_procedural(spec)}, out_path);
+void write_procedural(const ProceduralSpec& spec, const std::string& out_path,
+                      const ProceduralExtras& extras) {
+  write_procedural(spec, {{out_path, extras.offset}}, extras.velocity);
+}
+
+void write_procedural(const ProceduralSpec& spec, const std::vector<ProceduralFile>& files,
+                      std::optional<glm::dvec3> velocity) {
+  auto finite = [](glm::dvec3 v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); };
+  if (velocity && !finite(*velocity))
+    throw Error(fmt::format("{}: the velocity must be finite", files.empty() ? "" : files[0].path));
+  openvdb::FloatGrid::Ptr density = build_procedural(spec);
+  const openvdb::math::Transform::Ptr base = density->transform().copy();
+  openvdb::GridPtrVec grids{density};
+  if (velocity) {
+    openvdb::CoordBBox box = density->evalActiveVoxelBoundingBox();
+    box.expand(2);
+    const char* names[3] = {"vel.x", "vel.y", "vel.z"};
+    for (int c = 0; c < 3; ++c) {
+      auto g = openvdb::FloatGrid::create(0.f);
+      g->setName(names[c]);
+      g->fill(box, float((*velocity)[c]), true);
+      grids.push_back(g);
+    }
+  }
+  for (const ProceduralFile& f : files) {
+    if (!finite(f.offset)) throw Error(fmt::format("{}: the offset must be finite", f.path));
+    // The voxels stay; the transform carries the offset.
+    openvdb::math::Transform::Ptr xf = base->copy();
+    xf->postTranslate(openvdb::Vec3d(f.offset.x, f.offset.y, f.offset.z));
+    for (auto& g : grids) g->setTransform(xf->copy());
+    write_file(grids, f.path);
+  }
 }
 
 void write_grids(const std::vector<VoxelGrid>& grids, const std::string& out_path) {

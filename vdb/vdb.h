@@ -6,6 +6,7 @@
 #include <glm/glm.hpp>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <utility>
@@ -57,6 +58,21 @@ DeviceGrid load_grid(const std::string& path, const std::string& grid_name, NanP
 // The check load_grid starts with, reading only the file's header: before the device starts.
 void check_grid_name(const std::string& path, const std::string& grid_name, const std::string& key);
 
+// A velocity field as three float grids, one per component, each with its own index transform (a staggered
+// grid's x component sits half a voxel lower in x than the voxel centre, and likewise for y and z).
+struct VelocityGrids {
+  DeviceGrid c[3];
+  std::string layout;  // "vec3s", "vec3s staggered" or "float x/y/z" (which grids the file held)
+  uint64_t nan_voxels = 0;
+};
+// Reads the velocity `grid_name` of a .vdb file: a vec3s grid of that name (a staggered one honoured), else
+// the float grids grid_name.x, .y, .z (each with its own transform). NaN/Inf components become 0 (counted in
+// nan_voxels). Throws Error naming `key` ("media[0].velocity.grid") and the grids present when neither is
+// there, for a vector grid of another type, a non-affine transform or an empty grid.
+VelocityGrids load_velocity(const std::string& path, const std::string& grid_name, const std::string& key);
+// The name check load_velocity starts with, from the file's header.
+void check_velocity_name(const std::string& path, const std::string& grid_name, const std::string& key);
+
 // Procedural volumes built with OpenVDB's tools. Voxel centres sit at integer multiples of voxel_size.
 struct ProceduralSpec {
   std::string kind = "box";  // "box" | "sphere" | "cloud" | "height_fog" | "ramp" (linear in y)
@@ -83,8 +99,24 @@ void validate(const ProceduralSpec& spec, const std::string& where);
 double procedural_value(const ProceduralSpec& spec, glm::dvec3 world);
 
 DeviceGrid make_procedural(const ProceduralSpec& spec);  // grid name "density"
-// Writes a .vdb with one float fog-volume grid "density" (to a temporary file, then renamed).
-void write_procedural(const ProceduralSpec& spec, const std::string& out_path);
+// What write_procedural adds to the density: a translation of the grid (its transform; the voxels stay),
+// and a constant velocity written as float grids vel.x, vel.y, vel.z over the density's active box
+// dilated by two voxels (so that trilinear lookups anywhere in the density's support, and one voxel beyond,
+// read exactly this velocity).
+struct ProceduralExtras {
+  glm::dvec3 offset{0};                // world units
+  std::optional<glm::dvec3> velocity;  // world units per whatever the scene's velocity.unit says
+};
+// Writes a .vdb with one float fog-volume grid "density" and the extras (to a temporary file, then renamed).
+void write_procedural(const ProceduralSpec& spec, const std::string& out_path,
+                      const ProceduralExtras& extras = {});
+// The same volume, built once, written to several files (a sequence), each with its own offset.
+struct ProceduralFile {
+  std::string path;
+  glm::dvec3 offset{0};
+};
+void write_procedural(const ProceduralSpec& spec, const std::vector<ProceduralFile>& files,
+                      std::optional<glm::dvec3> velocity);
 
 // A scalar grid given voxel by voxel (for scripted inputs and tests): float, or half (float stored as half).
 // Voxels not listed hold the background. (No vector types: each grid type costs 12 s of compile time.)
@@ -95,6 +127,12 @@ struct VoxelGrid {
   glm::dmat4 index_to_world{1};  // affine; world = M * (i,j,k,1)
   float background = 0;
   std::vector<std::pair<glm::ivec3, float>> voxels;
+  // Boxes of active voxels with one value (inclusive index bounds), filled before `voxels` are set.
+  struct Box {
+    glm::ivec3 lo, hi;
+    float value;
+  };
+  std::vector<Box> boxes;
 };
 // Writes the grids to one .vdb file (to a temporary file, read back, then renamed).
 void write_grids(const std::vector<VoxelGrid>& grids, const std::string& out_path);

@@ -4,10 +4,10 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 #include <filesystem>
 #include <glm/gtc/matrix_transform.hpp>
 #include <limits>
+#include <optional>
 
 namespace haze::volume {
 
@@ -17,18 +17,6 @@ float clamp_g(float g, const std::string& where, std::vector<std::string>& notes
   float c = std::clamp(g, -kMaxAbsG, kMaxAbsG);
   if (c != g) notes.push_back(fmt::format("{}: g clamped from {} to {}", where, g, c));
   return c;
-}
-
-uint32_t append_grid(DeviceMedia& dm, vdb::DeviceGrid&& g) {
-  // PNanoVDB addresses are byte offsets into one uint array; NanoVDB grids need 32-byte alignment.
-  size_t offset = dm.nanovdb.size() * 4;
-  offset = (offset + 31) & ~size_t(31);
-  size_t words = (offset + g.nanovdb.size() + 3) / 4;
-  dm.nanovdb.resize(words, 0u);
-  std::memcpy(reinterpret_cast<uint8_t*>(dm.nanovdb.data()) + offset, g.nanovdb.data(), g.nanovdb.size());
-  dm.nan_voxels += g.nan_voxels;
-  dm.grids.push_back(std::move(g));
-  return uint32_t(offset);
 }
 
 std::string resolve_path(const scene::Scene& s, const std::string& file) {
@@ -41,13 +29,35 @@ std::string resolve_path(const scene::Scene& s, const std::string& file) {
 
 namespace {
 
-// Returns the grid `source` from `previous`, else makes it.
+// The index in `set` of the grid made from `source`: one added before, else a copy of `previous`'s, else
+// made now.
 template <class Make>
-vdb::DeviceGrid grid_for(const std::string& source, const DeviceMedia* previous, Make&& make) {
+uint32_t grid_index(GridSet& set, const std::string& source, const std::string& label,
+                    const GridSet* previous, Make&& make) {
+  for (size_t i = 0; i < set.grid_sources.size(); ++i)
+    if (set.grid_sources[i] == source) return uint32_t(i);
+  const vdb::DeviceGrid* old = nullptr;
   if (previous)
     for (size_t i = 0; i < previous->grid_sources.size(); ++i)
-      if (previous->grid_sources[i] == source) return previous->grids[i];
-  return make();
+      if (previous->grid_sources[i] == source) old = &previous->grids[i];
+  set.grids.push_back(old ? *old : make());
+  set.grid_sources.push_back(source);
+  set.grid_labels.push_back(label);
+  return uint32_t(set.grids.size() - 1);
+}
+
+// World box of a grid's index bbox dilated by one voxel (its trilinear support) under `i2w`.
+void world_box(const vdb::DeviceGrid& g, const glm::dmat4& i2w, glm::dvec3& lo, glm::dvec3& hi) {
+  lo = glm::dvec3(1e300);
+  hi = glm::dvec3(-1e300);
+  for (int c = 0; c < 8; ++c) {
+    glm::dvec3 ip((c & 1) ? g.index_max.x + 1 : g.index_min.x - 1,
+                  (c & 2) ? g.index_max.y + 1 : g.index_min.y - 1,
+                  (c & 4) ? g.index_max.z + 1 : g.index_min.z - 1);
+    glm::dvec3 w = glm::dvec3(i2w * glm::dvec4(ip, 1.0));
+    lo = glm::min(lo, w);
+    hi = glm::max(hi, w);
+  }
 }
 
 // The device's float box one ulp wider (the majorant must cover every point the shader counts inside).
@@ -69,12 +79,14 @@ DeviceMedia build_media(const scene::Scene& s, const DeviceMedia* previous) {
     std::string where = fmt::format("media[{}]", i);
     std::string source =
         m.procedural ? "procedural " + m.procedural->dump() : resolve_path(s, m.file) + " " + m.grid;
-    vdb::DeviceGrid density = grid_for(source, previous, [&] {
+    const uint32_t density_grid = grid_index(dm, source, where + ".grid", previous, [&] {
       return m.procedural
                  ? vdb::make_procedural(vdb::procedural_from_json(
                        *m.procedural, (s.path.empty() ? "" : s.path + ": ") + where + ".procedural"))
                  : vdb::load_grid(resolve_path(s, m.file), m.grid, vdb::NanPolicy::Zero, where + ".grid");
     });
+    density_index.push_back(density_grid);
+    const vdb::DeviceGrid& density = dm.grids[density_grid];
     if (density.nan_voxels > 0)
       dm.notes.push_back(fmt::format("{}: {} NaN/Inf voxels replaced by 0", where, density.nan_voxels));
     glsl::GpuMedium g{};
@@ -82,16 +94,8 @@ DeviceMedia build_media(const scene::Scene& s, const DeviceMedia* previous) {
     glm::dmat4 i2w = o2w * density.index_to_world;
     g.world_to_index = glm::mat4(glm::inverse(i2w));
     g.albedo_g = glm::vec4(m.albedo, clamp_g(m.g, where, dm.notes));
-    // World bounds of the index bbox dilated by one voxel (the trilinear support).
-    glm::dvec3 lo(1e300), hi(-1e300);
-    for (int c = 0; c < 8; ++c) {
-      glm::dvec3 ip((c & 1) ? density.index_max.x + 1 : density.index_min.x - 1,
-                    (c & 2) ? density.index_max.y + 1 : density.index_min.y - 1,
-                    (c & 4) ? density.index_max.z + 1 : density.index_min.z - 1);
-      glm::dvec3 w = glm::dvec3(i2w * glm::dvec4(ip, 1.0));
-      lo = glm::min(lo, w);
-      hi = glm::max(hi, w);
-    }
+    glm::dvec3 lo, hi;
+    world_box(density, i2w, lo, hi);
     // A bounded medium is zero outside its box: the same test clips it exactly.
     lo = glm::max(lo, glm::dvec3(m.bounds_min));
     hi = glm::min(hi, glm::dvec3(m.bounds_max));
@@ -107,33 +111,27 @@ DeviceMedia build_media(const scene::Scene& s, const DeviceMedia* previous) {
     dm.media.push_back(g);
     object_to_world.push_back(o2w);
 
-    uint32_t emission_offset = 0;
-    bool separate_emission = mode != 0 && !m.procedural && m.emission.grid != m.grid;
-    density_index.push_back(dm.grids.size());
-    dm.grid_sources.push_back(source);
-    uint32_t density_offset = append_grid(dm, std::move(density));
-    if (mode != 0) {
-      if (separate_emission) {
-        std::string e_source = resolve_path(s, m.file) + " " + m.emission.grid;
-        vdb::DeviceGrid e = grid_for(e_source, previous, [&] {
-          return vdb::load_grid(resolve_path(s, m.file), m.emission.grid, vdb::NanPolicy::Zero,
-                                where + ".emission.grid");
-        });
-        dm.grid_sources.push_back(e_source);
-        // The emission grid is read with the density grid's index transform: they must share it.
-        if (e.index_to_world != dm.grids[density_index.back()].index_to_world)
-          throw vdb::Error(
-              fmt::format("{}: grid '{}' and grid '{}' of {} have different transforms; resample the "
-                          "emission grid onto the density grid",
-                          where, m.emission.grid, m.grid, m.file));
-        emission_offset = append_grid(dm, std::move(e));
-      } else {
-        emission_offset = density_offset;  // procedural media emit in proportion to their density
-      }
+    uint32_t emission_grid = density_grid;  // procedural media emit in proportion to their density
+    if (mode != 0 && !m.procedural && m.emission.grid != m.grid) {
+      const std::string e_source = resolve_path(s, m.file) + " " + m.emission.grid;
+      emission_grid = grid_index(dm, e_source, where + ".emission.grid", previous, [&] {
+        return vdb::load_grid(resolve_path(s, m.file), m.emission.grid, vdb::NanPolicy::Zero,
+                              where + ".emission.grid");
+      });
+      if (uint64_t bad = dm.grids[emission_grid].nan_voxels)
+        dm.notes.push_back(fmt::format("{}: {} NaN/Inf voxels of emission grid '{}' replaced by 0", where,
+                                       bad, m.emission.grid));
+      // The emission grid is read with the density grid's index transform: they must share it.
+      if (dm.grids[emission_grid].index_to_world != dm.grids[density_grid].index_to_world)
+        throw vdb::Error(
+            fmt::format("{}: grid '{}' and grid '{}' of {} have different transforms; resample the "
+                        "emission grid onto the density grid",
+                        where, m.emission.grid, m.grid, m.file));
     }
-    dm.media.back().grid = glm::uvec4(density_offset, emission_offset, mode, 0);
+    dm.media.back().grid = glm::uvec4(density_grid, emission_grid, mode, 0);
   }
-  // Majorant inputs point into dm.grids, which no longer reallocates.
+  for (const vdb::DeviceGrid& g : dm.grids) dm.nan_voxels += g.nan_voxels;
+  // Majorant inputs point into dm.grids, which no longer grows.
   for (size_t i = 0; i < s.media.size(); ++i)
     maj_in.push_back({&dm.grids[density_index[i]], object_to_world[i], double(s.media[i].density_scale),
                       outward(dm.media[i].world_min, -1), outward(dm.media[i].world_max, 1)});
@@ -141,12 +139,41 @@ DeviceMedia build_media(const scene::Scene& s, const DeviceMedia* previous) {
   return dm;
 }
 
+DeviceVelocity build_velocity(const scene::Scene& prev, const DeviceVelocity* previous) {
+  DeviceVelocity dv;
+  for (size_t i = 0; i < prev.media.size(); ++i) {
+    const scene::Medium& m = prev.media[i];
+    dv.first.push_back(-1);
+    if (!m.velocity || m.procedural) continue;
+    const std::string where = fmt::format("media[{}].velocity.grid", i);
+    const std::string path = resolve_path(prev, m.file),
+                      key = (prev.path.empty() ? "" : prev.path + ": ") + where;
+    const std::string source = path + " " + m.velocity->grid;
+    // The three components come from one read; each is a grid of its own on the device.
+    std::optional<vdb::VelocityGrids> read;
+    const char* axis[3] = {"x", "y", "z"};
+    for (int c = 0; c < 3; ++c) {
+      const uint32_t k =
+          grid_index(dv, source + " " + axis[c], fmt::format("{} {}", where, axis[c]), previous, [&] {
+            if (!read) read = vdb::load_velocity(path, m.velocity->grid, key);
+            return read->c[c];
+          });
+      if (c == 0) dv.first.back() = int32_t(k);
+    }
+    if (read && read->nan_voxels > 0)
+      dv.notes.push_back(fmt::format("{}: {} NaN/Inf velocity components of {} replaced by 0", where,
+                                     read->nan_voxels, m.file));
+  }
+  return dv;
+}
+
 std::vector<glsl::MediumMotion> media_motion(const scene::Scene& s, const scene::Scene& p,
-                                             const DeviceMedia& media) {
+                                             const DeviceMedia& media, const DeviceVelocity& velocity) {
   std::vector<glsl::MediumMotion> moved;
   for (size_t i = 0; i < s.media.size() && i < p.media.size() && i < media.media.size(); ++i) {
     glm::dmat4 now = s.media[i].transform.matrix(), before = p.media[i].transform.matrix();
-    if (now == before) continue;
+    const int32_t vel = i < velocity.first.size() ? velocity.first[i] : -1;
+    if (now == before && vel < 0) continue;
     glsl::MediumMotion m{};
     glm::dmat4 prev_to_now = now * glm::inverse(before), now_to_prev = before * glm::inverse(now);
     m.prev_world_to_world = glm::mat4(prev_to_now);
@@ -158,6 +185,27 @@ std::vector<glsl::MediumMotion> media_motion(const scene::Scene& s, const scene:
       lo = glm::min(lo, q);
       hi = glm::max(hi, q);
     }
+    if (vel >= 0) {
+      // The previous frame's contents are where its velocity grids are (a sequence's medium moves inside
+      // its files): the box covers them too, within the previous frame's clip box.
+      const scene::Medium& pm = p.media[i];
+      const scene::Velocity& v = *pm.velocity;
+      for (int c = 0; c < 3; ++c) {
+        const vdb::DeviceGrid& g = velocity.grids[size_t(vel + c)];
+        const glm::dmat4 i2w = before * g.index_to_world;
+        glm::dvec3 glo, ghi;
+        world_box(g, i2w, glo, ghi);
+        lo = glm::min(lo, glm::max(glo, glm::dvec3(pm.bounds_min)));
+        hi = glm::max(hi, glm::min(ghi, glm::dvec3(pm.bounds_max)));
+        m.prev_world_to_velocity[c] = glm::mat4(glm::inverse(i2w));
+      }
+      // Grid vectors are in the file's world units (the medium's object space) per second or per frame.
+      const double dt = v.unit == "frame" ? 1.0 : 1.0 / double(p.render.fps);
+      glm::dmat4 to_world = now;
+      to_world[3] = glm::dvec4(0, 0, 0, 1);
+      m.velocity_to_world = glm::mat4(to_world * glm::dmat4(glm::dmat3(double(v.scale) * dt)));
+      m.velocity = glm::uvec4(uint32_t(vel), uint32_t(vel + 1), uint32_t(vel + 2), 1u);
+    }
     m.prev_min = glm::vec4(glm::vec3(lo), 0);
     m.prev_max = glm::vec4(glm::vec3(hi), 0);
     moved.push_back(m);
@@ -165,21 +213,73 @@ std::vector<glsl::MediumMotion> media_motion(const scene::Scene& s, const scene:
   return moved;
 }
 
-void Media::update(const scene::Scene& s, const scene::Scene& prev) {
+void DeviceGrids::update(gpu::Context& ctx, const GridSet& set, bool wanted) {
+  if (!wanted || set.grids.empty()) {
+    buffers_.clear();
+    sources_.clear();
+    table_ = gpu::Buffer();
+    return;
+  }
+  if (!ctx.features().buffer_device_address)
+    throw gpu::Error(
+        "VDB media need bufferDeviceAddress (the shaders read NanoVDB grids through device addresses), which "
+        "this device lacks; pick another device with --device");
+  std::vector<gpu::Buffer> buffers;
+  std::vector<glm::uvec2> addresses;
+  for (size_t i = 0; i < set.grids.size(); ++i) {
+    const vdb::DeviceGrid& g = set.grids[i];
+    auto same = std::find(sources_.begin(), sources_.end(), set.grid_sources[i]);
+    if (same != sources_.end() && buffers_[size_t(same - sources_.begin())].valid()) {
+      buffers.push_back(std::move(buffers_[size_t(same - sources_.begin())]));
+    } else {
+      const std::string name = fmt::format("nanovdb {} '{}'", set.grid_labels[i], g.name);
+      try {
+        buffers.emplace_back(ctx, name, "scene data", g.nanovdb.size(),
+                             fmt::format("NanoVDB float, {} active voxels", g.active_voxels));
+      } catch (const gpu::Error& e) {
+        throw gpu::Error(
+            fmt::format("{}; a grid is one allocation on the device: raise its voxel size or "
+                        "split it into several media",
+                        e.what()));
+      }
+      buffers.back().upload(g.nanovdb.data(), g.nanovdb.size());
+    }
+    const uint64_t a = buffers.back().device_address();
+    addresses.emplace_back(uint32_t(a), uint32_t(a >> 32));
+  }
+  buffers_ = std::move(buffers);
+  sources_ = set.grid_sources;
+  gpu::keep_uploaded(ctx, table_, true, "nanovdb grid addresses", "scene data", addresses,
+                     "u64 device address per grid");
+}
+
+void Media::update(const scene::Scene& s) {
   host_ = build_media(s, &host_);
   hetero_ = !s.media.empty();
   haze_ = s.haze.has_value() && s.haze->sigma_t > 0.f;
   haze_params_ = s.haze;
   emission_ = std::any_of(s.media.begin(), s.media.end(),
                           [](const scene::Medium& m) { return m.emission.mode != "none"; });
-  gpu::keep_uploaded(ctx_, nanovdb_, hetero_, "nanovdb grids", "scene data", host_.nanovdb, "NanoVDB");
+  grids_.update(ctx_, host_, hetero_);
   gpu::keep_uploaded(ctx_, table_, hetero_, "media", "scene data", host_.media, "GpuMedium");
   const auto& maj = host_.majorant;
   gpu::keep_uploaded(ctx_, majorant_, hetero_, "majorant grid", "scene data", maj.sigma_max,
                      fmt::format("f32 {}x{}x{}", maj.res.x, maj.res.y, maj.res.z));
-  std::vector<glsl::MediumMotion> moved = media_motion(s, prev, host_);
+}
+
+void Media::update_motion(const scene::Scene& s, const scene::Scene& prev, bool wanted, bool velocity) {
+  velocity_ = wanted && velocity ? build_velocity(prev, &velocity_) : DeviceVelocity{};
+  velocity_grids_.update(ctx_, velocity_, wanted);
+  std::vector<glsl::MediumMotion> moved;
+  if (wanted) moved = media_motion(s, prev, host_, velocity_);
   moving_ = uint32_t(moved.size());
   gpu::keep_uploaded(ctx_, motion_, !moved.empty(), "media motion", "scene data", moved, "MediumMotion");
+}
+
+std::vector<std::string> Media::notes() const {
+  std::vector<std::string> n = host_.notes;
+  n.insert(n.end(), velocity_.notes.begin(), velocity_.notes.end());
+  return n;
 }
 
 void Media::declare(gpu::KernelDecl& k) const {
@@ -187,14 +287,14 @@ void Media::declare(gpu::KernelDecl& k) const {
   if (haze_) k.define("HAZE_HAZE");
   if (!hetero_) return;
   if (emission_) k.define("HAZE_EMISSION");
-  k.buffer("nanovdb", nanovdb_.size(), 4);
+  k.buffer("grids", grids_.table().size(), 8);
   k.buffer("media", table_.size(), sizeof(glsl::GpuMedium));
   k.buffer("majorant", majorant_.size(), 4);
 }
 
 void Media::bind(gpu::Bindings& b) const {
   if (!hetero_) return;
-  b.set("nanovdb", nanovdb_);
+  b.set("grids", grids_.table());
   b.set("media", table_);
   b.set("majorant", majorant_);
 }

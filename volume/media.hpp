@@ -20,10 +20,16 @@ constexpr float kMaxAbsG = 0.99f;
 // Upper bound on tracking steps per query: a pathological majorant cannot hang a dispatch.
 constexpr uint32_t kMaxTrackingSteps = 1u << 20;
 
-struct DeviceMedia {
-  std::vector<vdb::DeviceGrid> grids;     // density (and emission) grids, in upload order
-  std::vector<std::string> grid_sources;  // what each grid was made from (file and grid, or procedural spec)
-  std::vector<uint32_t> nanovdb;          // all grids, each at a 32-byte aligned offset
+// Grids by index, each made once from its source (file and grid name, or procedural spec).
+struct GridSet {
+  std::vector<vdb::DeviceGrid> grids;
+  std::vector<std::string> grid_sources;  // what each grid was made from
+  std::vector<std::string>
+      grid_labels;  // the scene key that first named it ("media[0].grid"), for the ledger
+};
+
+struct DeviceMedia : GridSet {
+  // grids: density (and emission) grids, each once; GpuMedium::grid names them by their index.
   std::vector<glsl::GpuMedium> media;
   vdb::MajorantGrid majorant;
   std::vector<std::string> notes;  // clamps and replacements the user should know about
@@ -34,27 +40,66 @@ struct DeviceMedia {
 // source is unchanged (an animation moving or scaling a medium) are reused instead of read again.
 DeviceMedia build_media(const scene::Scene& s, const DeviceMedia* previous = nullptr);
 
-// How the VDB media of `s` moved since `prev` (the previous frame): one entry per medium whose transform
-// changed, for the volume motion vectors of the virtual points inside it.
-std::vector<glsl::MediumMotion> media_motion(const scene::Scene& s, const scene::Scene& prev,
-                                             const DeviceMedia& media);
+// The velocity grids of the media of `prev` (the previous frame, whose virtual points they move): x, y, z of
+// each medium with a velocity, in media order. Grids of `previous` whose source is unchanged are reused.
+struct DeviceVelocity : GridSet {
+  std::vector<int32_t> first;  // per medium: index of its x grid (y, z follow), -1 without velocity
+  std::vector<std::string> notes;
+};
+DeviceVelocity build_velocity(const scene::Scene& prev, const DeviceVelocity* previous = nullptr);
 
-// The media on the device. Features: HAZE_HETERO (VDB media: NanoVDB grids, media table, majorant grid),
-// HAZE_HAZE (homogeneous haze, in the scene block only), HAZE_EMISSION (an emitting VDB medium).
+// How the VDB media of `s` moved since `prev` (the previous frame): one entry per medium whose transform
+// changed or that has a velocity in `velocity` (built from `prev`), for the volume motion vectors of the
+// virtual points inside it.
+std::vector<glsl::MediumMotion> media_motion(const scene::Scene& s, const scene::Scene& prev,
+                                             const DeviceMedia& media, const DeviceVelocity& velocity = {});
+
+// A GridSet on the device: a buffer per grid (a line of its own in the ledger, uploaded again only when its
+// source changes) and the table of their device addresses, the binding "grids" of shaders/volume/grids.glsl.
+// Each grid may be as large as one allocation (maxMemoryAllocationSize); together they are bounded by the
+// device's memory only.
+class DeviceGrids {
+ public:
+  // Holds `set` on the device; an empty set (or !wanted) holds no buffer.
+  void update(gpu::Context& ctx, const GridSet& set, bool wanted);
+  const gpu::Buffer& table() const { return table_; }
+  bool empty() const { return !table_.valid(); }
+
+ private:
+  std::vector<gpu::Buffer> buffers_;
+  std::vector<std::string> sources_;  // the source each of buffers_ holds
+  gpu::Buffer table_;
+};
+
+// The media on the device. Features: HAZE_HETERO (VDB media: the grid table, media table, majorant grid),
+// HAZE_HAZE (homogeneous haze, in the scene block only), HAZE_EMISSION (an emitting VDB medium). Every
+// NanoVDB grid is a buffer of its own, read through its device address (DeviceGrids), so the grids
+// together may exceed maxStorageBufferRange. How the media moved since the previous frame (transforms and
+// velocity grids) is the volume motion pass's input (guiding/volume_motion.hpp), kept only while wanted.
 class Media : public gpu::DeviceData {
  public:
   explicit Media(gpu::Context& ctx) : ctx_(ctx) {}
 
-  // Builds the media of `s` (reusing grids of unchanged sources) and how they moved since `prev`; buffers
-  // are reused when their size is unchanged, and absent features hold none.
-  void update(const scene::Scene& s, const scene::Scene& prev);
+  // Builds the media of `s` (reusing grids of unchanged sources); buffers are reused when their size is
+  // unchanged, and absent features hold none.
+  void update(const scene::Scene& s);
+  // How the media of `s` moved since `prev`, for the volume motion pass; with `velocity` (the pass will
+  // project the previous frame's points) the velocity grids of `prev`'s media are loaded too. Without
+  // `wanted` nothing is kept.
+  void update_motion(const scene::Scene& s, const scene::Scene& prev, bool wanted, bool velocity);
 
   bool any() const { return hetero_ || haze_; }  // any medium at all
   bool hetero() const { return hetero_; }
   const DeviceMedia& host() const { return host_; }
+  const DeviceVelocity& host_velocity() const { return velocity_; }
   // The moved media (glsl::MediumMotion each) and their number; nullptr and 0 when none moved.
   const gpu::Buffer* motion() const { return motion_.valid() ? &motion_ : nullptr; }
   uint32_t moving() const { return moving_; }
+  // The velocity grids' table (binding "grids" of the volume motion pass); nullptr when no medium has one.
+  const gpu::Buffer* velocity_grids() const {
+    return velocity_grids_.empty() ? nullptr : &velocity_grids_.table();
+  }
+  std::vector<std::string> notes() const;  // the media's and the velocity grids'
 
   void declare(gpu::KernelDecl& k) const override;
   void bind(gpu::Bindings& b) const override;
@@ -66,7 +111,9 @@ class Media : public gpu::DeviceData {
   DeviceMedia host_;
   bool hetero_ = false, haze_ = false, emission_ = false;
   std::optional<scene::Haze> haze_params_;
-  gpu::Buffer nanovdb_, table_, majorant_, motion_;
+  DeviceVelocity velocity_;
+  DeviceGrids grids_, velocity_grids_;
+  gpu::Buffer table_, majorant_, motion_;
   uint32_t moving_ = 0;
 };
 

@@ -3,7 +3,7 @@
 // trilinear density lookups at index-space points, either uniform random points of the domain (MARCH = 0)
 // or `n` equally spaced points on the segment between two random points of the domain (MARCH = 1, a
 // fixed-count ray march). Without HAZE_DENSE the lookups go through grid_trilinear() of
-// volume/medium.glsl, the tracker's own code; with HAZE_DENSE through dense[], an x-fastest array of the
+// volume/grids.glsl, the tracker's own code; with HAZE_DENSE through dense[], an x-fastest array of the
 // box dense_origin .. dense_origin + dense_dims - 1 (indices outside it clamp to its border, which the host
 // fills with the background 0). One lookup call site, in a loop (lavapipe: about 1 s of pipeline creation
 // per inlined PNanoVDB lookup).
@@ -29,7 +29,7 @@ layout(std430, binding = BINDING_result) writeonly buffer OutBuffer {
 layout(push_constant) uniform Push {
   uint count;        // invocations
   uint n;            // lookups per invocation
-  uint grid_offset;  // byte offset of the NanoVDB grid in pnanovdb_buf_data
+  uint grid;         // the NanoVDB grid's index in the binding "grids"
   uint seed;
   vec4 lo;             // index-space domain of the points: lo.xyz .. hi.xyz
   vec4 hi;             //
@@ -80,7 +80,7 @@ void main() {
 #if HAZE_DENSE
     sum += dense_trilinear(p);
 #else
-    sum += grid_trilinear(pc.grid_offset, p);
+    sum += grid_trilinear(pc.grid, p);
 #endif
   }
   result[i] = sum;

@@ -40,6 +40,14 @@ struct GpuTriangleUv {
   vec4 uv2;   // xy: v2's uv
 };
 
+// Shading normals of the GpuTriangle with the same index (scenes with a smooth mesh only): the corners'
+// world-space vertex normals, octahedral (common/packing.glsl) in packSnorm2x16; w 1 when the triangle has
+// them, 0 for a flat mesh's triangle or one whose vertex normals are unusable (it shades with its geometric
+// normal).
+struct GpuTriangleNormals {
+  uvec4 n012;  // x, y, z: corners v0, v1, v2; w: 1 if set
+};
+
 // Test/benchmark kernel records (shaders/surfaces/trace_rays.comp).
 struct GpuRay {
   vec4 origin_tmin;

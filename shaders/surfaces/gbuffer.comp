@@ -1,7 +1,8 @@
 #version 460
 // The G-buffer (docs/rendering.md, conventions) from the ray through each pixel centre: linear depth, its
-// gradient, normal, albedo, instance id and motion (previous pixel position - current). Without surfaces only
-// the camera's own motion is left: directions at infinity reprojected into the previous camera.
+// gradient (on the hit's plane), the shading normal, albedo, instance id and motion (previous pixel
+// position - current). Without surfaces only the camera's own motion is left: directions at infinity
+// reprojected into the previous camera.
 #extension GL_GOOGLE_include_directive : require
 layout(local_size_x = 8, local_size_y = 8) in;
 
@@ -35,13 +36,14 @@ void main() {
   if (h.triangle != BVH_NONE) {
     depth = h.t;
     vec3 X = o + d * h.t;
-    n = dot(h.normal, d) < 0.0f ? h.normal : -h.normal;
+    vec3 ng = dot(h.normal, d) < 0.0f ? h.normal : -h.normal;
+    n = surface_normal(h, ng);  // the shading normal
     // Depth of the neighbours' rays on the hit plane: exact for planar neighbourhoods.
     vec3 dx = camera_direction(scene.cam_right.xyz, scene.cam_up.xyz, scene.cam_forward.xyz,
                                centre + vec2(1, 0), size);
     vec3 dy = camera_direction(scene.cam_right.xyz, scene.cam_up.xyz, scene.cam_forward.xyz,
                                centre + vec2(0, 1), size);
-    float nx = dot(n, dx), ny = dot(n, dy), nX = dot(n, X - o);
+    float nx = dot(ng, dx), ny = dot(ng, dy), nX = dot(ng, X - o);
     ddx = nx < -1e-6f ? nX / nx - depth : 0.0f;
     ddy = ny < -1e-6f ? nX / ny - depth : 0.0f;
     GpuInstance inst = instances[h.instance];

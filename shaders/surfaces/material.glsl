@@ -1,9 +1,11 @@
-// Surface materials at a BVH hit: Lambertian albedo, constant per instance or times an albedo texture.
-// The kernel declares the binding "instances" and, with HAZE_TEXTURE, "bvh_uvs" (per-triangle corner uvs in
-// BVH leaf order) and "texels" (surfaces/device_surfaces.hpp).
+// Surface materials at a BVH hit: Lambertian albedo, constant per instance or times an albedo texture, and
+// the shading normal. The kernel declares the binding "instances" and, with HAZE_TEXTURE, "bvh_uvs"
+// (per-triangle corner uvs in BVH leaf order) and "texels", with HAZE_NORMALS "bvh_normals" (per-triangle
+// corner normals, surfaces/device_surfaces.hpp).
 #ifndef HAZE_MATERIAL_GLSL
 #define HAZE_MATERIAL_GLSL
 
+#include "common/packing.glsl"
 #include "surfaces/bvh.glsl"
 
 layout(std430, binding = BINDING_instances) readonly buffer InstanceBuffer {
@@ -15,6 +17,12 @@ layout(std430, binding = BINDING_bvh_uvs) readonly buffer TriangleUvs {
 };
 layout(std430, binding = BINDING_texels) readonly buffer Texels {
   uvec2 texels[];
+};
+#endif
+
+#if HAZE_NORMALS
+layout(std430, binding = BINDING_bvh_normals) readonly buffer TriangleNormals {
+  GpuTriangleNormals bvh_normals[];
 };
 #endif
 
@@ -41,6 +49,31 @@ vec3 texture_bilinear(uvec4 tex, vec2 uv) {
   return mix(a, b, f.y);
 }
 #endif
+
+// The shading normal at hit h on the side of n, the geometric normal turned towards where the ray came from:
+// the vertex normals interpolated with the hit's barycentrics where the triangle has them, else n. Ray
+// origins are offset along n and light arriving from below n is cut (surface_cosine): shading normals
+// change how a surface is lit, not which side of it light reaches.
+vec3 surface_normal(BvhHit h, vec3 n) {
+#if HAZE_NORMALS
+  uvec4 c = bvh_normals[h.triangle].n012;
+  if (c.w != 0u) {
+    vec3 ns = (1.0f - h.uv.x - h.uv.y) * oct_decode(unpackSnorm2x16(c.x)) +
+              h.uv.x * oct_decode(unpackSnorm2x16(c.y)) + h.uv.y * oct_decode(unpackSnorm2x16(c.z));
+    float len = length(ns);
+    // Opposite corner normals can cancel; the geometric normal is then all there is.
+    if (len > 1e-6f) return dot(ns, n) < 0.0f ? -ns / len : ns / len;
+  }
+#endif
+  return n;
+}
+
+// cos(ns, wi) for light leaving towards wi (or arriving from it), zero when wi lies below the geometric
+// normal n: where the shading normal leans past the geometry (the terminator of a coarse mesh), light must
+// not leak through the surface.
+float surface_cosine(vec3 n, vec3 ns, vec3 wi) {
+  return dot(n, wi) > 0.0f ? max(dot(ns, wi), 0.0f) : 0.0f;
+}
 
 vec3 surface_albedo(BvhHit h) {
   GpuInstance inst = instances[h.instance];

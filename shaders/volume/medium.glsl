@@ -1,22 +1,18 @@
 // The medium seen by the tracker: sigma_t at a point (with the stochastic choice of the scattering
 // component), the piecewise-constant majorant along a ray, and ratio/delta tracking on top of them.
-// Reads the scene block and, with HAZE_HETERO, the bindings "nanovdb" (every grid, read by PNanoVDB),
-// "media" and "majorant" (volume/media.hpp).
+// Reads the scene block and, with HAZE_HETERO, the bindings "grids" (every grid's device address, read by
+// PNanoVDB: volume/grids.glsl), "media" and "majorant" (volume/media.hpp).
 #ifndef HAZE_MEDIUM_GLSL
 #define HAZE_MEDIUM_GLSL
 
 #if HAZE_HETERO
-layout(std430, binding = BINDING_nanovdb) readonly buffer NanoBuffer {
-  uint pnanovdb_buf_data[];
-};
+#include "volume/grids.glsl"
 layout(std430, binding = BINDING_media) readonly buffer MediaBuffer {
   GpuMedium media[];
 };
 layout(std430, binding = BINDING_majorant) readonly buffer MajorantBuffer {
   float majorant[];
 };
-#define PNANOVDB_GLSL
-#include "nanovdb/PNanoVDB.h"
 #endif
 
 struct MediumSample {
@@ -56,30 +52,6 @@ float media_exit(vec3 o, vec3 d) {
 #endif
   return min(t, T_INF);
 }
-
-#if HAZE_HETERO
-// Trilinear density at an index-space position: one PNanoVDB lookup call site, corners in a loop that
-// is kept rolled (each inlined lookup costs about a second of pipeline creation on lavapipe).
-float grid_trilinear(uint grid_offset, vec3 p) {
-  pnanovdb_grid_handle_t grid;
-  grid.address.byte_offset = grid_offset;
-  pnanovdb_buf_t buf;
-  pnanovdb_readaccessor_t acc;
-  pnanovdb_readaccessor_init(acc, pnanovdb_tree_get_root(buf, pnanovdb_grid_get_tree(buf, grid)));
-  vec3 pf = floor(p);
-  ivec3 i0 = ivec3(pf);
-  vec3 f = p - pf;
-  float sum = 0.0f;
-  [[dont_unroll]] for (int c = 0; c < 8; ++c) {
-    ivec3 o = ivec3(c & 1, (c >> 1) & 1, c >> 2);
-    vec3 w3 = mix(vec3(1.0f) - f, f, vec3(o));
-    ivec3 ijk = i0 + o;
-    pnanovdb_address_t a = pnanovdb_readaccessor_get_value_address(PNANOVDB_GRID_TYPE_FLOAT, buf, acc, ijk);
-    sum += w3.x * w3.y * w3.z * pnanovdb_read_float(buf, a);
-  }
-  return sum;
-}
-#endif
 
 // sigma_t at x, and one component chosen with probability sigma_t,i / sigma_t using the single uniform u
 // (streaming selection: u is rescaled after each decision).

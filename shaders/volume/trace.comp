@@ -27,7 +27,9 @@ PIXEL_LAYER(acc_surf);
 PIXEL_LAYER(acc_surf2);
 PIXEL_LAYER(acc_demod);
 PIXEL_LAYER(acc_demod2);
-PIXEL_LAYER(acc_emit);
+#ifdef BINDING_acc_emit
+PIXEL_LAYER(acc_emit);  // scenes with emissive surfaces only
+#endif
 PIXEL_LAYER(acc_vp);
 layout(std430, binding = BINDING_counters) buffer Counters {
   uint counters[];  // COUNT_*
@@ -149,6 +151,7 @@ void main() {
   float g = 0.0f;             // phase anisotropy at a volume vertex
   bool on_surface = false;    // the vertex is on a surface (normal n, albedo alb) rather than in a medium
   vec3 n = vec3(0.0f, 1.0f, 0.0f), alb = vec3(0.0f);
+  vec3 ns = n;  // the shading normal (surfaces/material.glsl); n, the geometric one, offsets rays
   // Surface the current walk ray reaches if no medium stops it first.
   bool walk_hit = false;
 #if HAZE_SURFACES
@@ -166,9 +169,12 @@ void main() {
 #if HAZE_SURFACES
         GpuInstance inst = instances[cam_h.instance];
         L_surf = r.T * inst.emission.rgb;
-        E_surf = L_surf;
+#ifdef BINDING_acc_emit
+        E_surf = L_surf;  // else the scene has no emissive surface and E_surf stays 0 (folded away)
+#endif
         x = cam_o + cam_d * t_s;
         n = dot(cam_h.normal, cam_d) < 0.0f ? cam_h.normal : -cam_h.normal;
+        ns = surface_normal(cam_h, n);
         alb = surface_albedo(cam_h);
         albedo0 = alb;
         on_surface = true;
@@ -201,15 +207,19 @@ void main() {
       else
         L_vol += pending * r.T;
 #if HAZE_MULTI || HAZE_SURFACES
+      bool below = false;  // a bounce below the geometric surface reflects nothing (no light leaks)
       if (depth < max_depth) {
         if (on_surface) {
           // Lambertian: cosine sampling makes the weight the albedo.
-          d = sample_cosine_hemisphere(n, vec2(rng_next(rng), rng_next(rng)));
+          d = sample_cosine_hemisphere(ns, vec2(rng_next(rng), rng_next(rng)));
           beta *= alb;
           x += n * surface_epsilon(x);
+          below = !(dot(d, n) > 0.0f);
         } else {
           d = hg_sample(d, g, vec2(rng_next(rng), rng_next(rng)));
         }
+      }
+      if (depth < max_depth && !below) {
         q_o = x;
         q_d = d;
         q_t0 = 0.0f;
@@ -248,6 +258,7 @@ void main() {
         // Emission of surfaces reached by the walk is counted by NEE, which samples emissive triangles.
         x = x + d * q_t1;
         n = dot(walk_h.normal, d) < 0.0f ? walk_h.normal : -walk_h.normal;
+        ns = surface_normal(walk_h, n);
         alb = surface_albedo(walk_h);
         on_surface = true;
         vertex = true;
@@ -277,9 +288,11 @@ void main() {
 #if HAZE_LIGHTS
       vec3 o = on_surface ? x + n * surface_epsilon(x) : x;
       LightSample ls = sample_light(o, vec3(rng_next(rng), rng_next(rng), rng_next(rng)));
+#if HAZE_SURFACES
       if (on_surface)
-        pending = beta * alb * (INV_PI * max(dot(n, ls.wi), 0.0f)) * ls.Li;
+        pending = beta * alb * (INV_PI * surface_cosine(n, ns, ls.wi)) * ls.Li;
       else
+#endif
         pending = beta * hg_phase(dot(ls.wi, d), g) * ls.Li;
       bool visible = any(greaterThan(pending, vec3(0.0f)));
 #if HAZE_SURFACES
@@ -420,7 +433,9 @@ void main() {
   acc_surf2[pixel] += vec4(square_capped(L_surf, clamped), 0.0f);
   acc_demod[pixel] += vec4(demod, 0.0f);
   acc_demod2[pixel] += vec4(square_capped(demod, clamped), 0.0f);
+#ifdef BINDING_acc_emit
   acc_emit[pixel] += vec4(E_surf, 0.0f);
+#endif
   if (clamped) atomicAdd(counters[COUNT_CLAMPED_SQUARES], 1u);
   acc_vp[pixel] += vec4(vp_wt, vp_w, vp_g, vp_gn);
 }
