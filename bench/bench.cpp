@@ -86,7 +86,7 @@ double time_once(gpu::Context& ctx, gpu::Timer& timer, const Record& record) {
 // a tilted plane with 1-spp-like noise and a slow pan, after two warm-up frames; "copy": the copy kernel,
 // recorded after each frame's passes in the same submission.
 std::map<std::string, double> bench_svgf(gpu::Context& ctx, uint32_t W, uint32_t H, const std::string& kernel,
-                                         int reps, const CopyKernel& copy) {
+                                         int reps, const CopyKernel& copy, const CopyKernel& roofline) {
   const size_t pixels = size_t(W) * H;
   std::vector<float> colour(pixels * 3), g(pixels * glsl::G_STRIDE, 0.f);
   uint32_t rng = 1;
@@ -123,6 +123,10 @@ std::map<std::string, double> bench_svgf(gpu::Context& ctx, uint32_t W, uint32_t
       timer.begin(cmd, "svgf.bench.copy");
       copy.record(cmd);
       timer.end(cmd);
+      gpu::compute_barrier(cmd);
+      timer.begin(cmd, "svgf.bench.roofline");
+      roofline.record(cmd);
+      timer.end(cmd);
     });
     auto t = timer.read_ms();
     if (i < 2) continue;
@@ -131,11 +135,21 @@ std::map<std::string, double> bench_svgf(gpu::Context& ctx, uint32_t W, uint32_t
   std::map<std::string, double> out;
   double total = 0;
   for (auto& [pass, v] : ms)
-    if (pass != "copy") total += out[pass] = render::median(v);
+    if (pass != "copy" && pass != "roofline") total += out[pass] = render::median(v);
   out["total"] = total;
   out["copy"] = render::median(ms.at("copy"));
+  out["roofline"] = render::median(ms.at("roofline"));
   return out;
 }
+
+// The roofline of the bench's surface instance (adaptive mode, gather, surface geometry): the bytes per pixel
+// it must read and write once per frame if every input were read once and every output written once, in the
+// stored precision. Reads: noisy colour 3 f32, motion 2 f32, this frame's G-buffer fields the passes use (z,
+// dz.xy, z_prev, octahedral normal 2, albedo 3: 9 f32), the previous frame's (z, normal: 3 f32), the history
+// colour (RGBA16F), moments (m1, m2, n: 3 f32) and last TAA output (RGBA16F). Writes: the history colour,
+// moments and TAA output. Temporaries between passes (percentiles, ping-pong buffers) are not counted.
+constexpr size_t kSvgfRooflineRead = (3 + 2 + 9 + 3) * 4 + 8 + denoise::glsl::SVGF_MOMENTS_STRIDE * 4 + 8;
+constexpr size_t kSvgfRooflineWritten = 8 + denoise::glsl::SVGF_MOMENTS_STRIDE * 4 + 8;
 
 // BVH rays per second on the GPU and through Embree's CPU intersector (all threads): the same random rays
 // over a slatted window, a sphere, a perforated panel and a floor.
@@ -345,14 +359,23 @@ json bench_svgf_sizes(gpu::Context& ctx, const std::string& sizes) {
   for (const std::string& sz : split(sizes, ',')) {
     auto [dw, dh] = parse_size(sz, "--denoise-sizes");
     CopyKernel copy(ctx, size_t(dw) * dh * 2);
-    json entry = {{"image_mb", double(dw) * dh * 8 / 1e6}, {"copy_ms", json::object()}};
+    // The copy kernel reads and writes as many bytes as the instance's roofline moves in all.
+    const size_t roofline_bytes = kSvgfRooflineRead + kSvgfRooflineWritten;
+    CopyKernel roofline(ctx, size_t(dw) * dh * roofline_bytes / 8);
+    json entry = {
+        {"image_mb", double(dw) * dh * 8 / 1e6},
+        {"roofline_bytes_per_pixel", {{"read", kSvgfRooflineRead}, {"written", kSvgfRooflineWritten}}},
+        {"copy_ms", json::object()},
+        {"roofline_ms", json::object()}};
     for (const char* kernel : {"5x5", "subsampled"}) {
       json k = json::object();
-      auto t = bench_svgf(ctx, dw, dh, kernel, 5, copy);
-      const double c = t.at("copy");
+      auto t = bench_svgf(ctx, dw, dh, kernel, 5, copy, roofline);
+      const double c = t.at("copy"), r = t.at("roofline");
       entry["copy_ms"][kernel] = c;
+      entry["roofline_ms"][kernel] = r;
       for (auto& [pass, ms] : t)
-        if (pass != "copy") k[pass] = {{"median_ms", ms}, {"ratio_to_copy", ms / c}};
+        if (pass != "copy" && pass != "roofline") k[pass] = {{"median_ms", ms}, {"ratio_to_copy", ms / c}};
+      k["total"]["ratio_to_roofline"] = t.at("total") / r;
       entry[kernel] = k;
     }
     dn[sz] = entry;
@@ -376,11 +399,19 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
   }
   if (j.contains("svgf_surface"))
     for (const std::string& sz : svgf_sizes)
-      for (const char* kernel : {"5x5", "subsampled"})
-        add(fmt::format("svgf.surface {} {}/copy", sz, kernel),
-            j["svgf_surface"][sz][kernel]["total"]["ratio_to_copy"],
+      for (const char* kernel : {"5x5", "subsampled"}) {
+        const json& e = j["svgf_surface"][sz];
+        add(fmt::format("svgf.surface {} {}/copy", sz, kernel), e[kernel]["total"]["ratio_to_copy"],
             fmt::format("surface SVGF, all passes of a frame ({} a-trous) / copy of one RGBA16F image",
                         kernel));
+        add(fmt::format("svgf.surface {} {}/roofline", sz, kernel), e[kernel]["total"]["ratio_to_roofline"],
+            fmt::format(
+                "same frame / the copy kernel moving the instance's roofline ({} B read, {} B written "
+                "per pixel; roofline / copy {:.2f})",
+                e["roofline_bytes_per_pixel"]["read"].get<size_t>(),
+                e["roofline_bytes_per_pixel"]["written"].get<size_t>(),
+                e["roofline_ms"][kernel].get<double>() / e["copy_ms"][kernel].get<double>()));
+      }
   if (j.contains("view") && !j["view"].contains("skipped")) {
     const auto& r = j["view"]["wall_over_gpu"];
     add("viewer wall/GPU", r["mean"],
@@ -695,6 +726,9 @@ int run(const Options& o, const gpu::ContextOptions& co) {
                      entry["subsampled"].contains(pass)
                          ? entry["subsampled"][pass]["ratio_to_copy"].get<double>()
                          : 0.0);
+        fmt::print("  {:<28}{:>14.1f}{:>14.1f}\n", "total / roofline",
+                   entry["5x5"]["total"]["ratio_to_roofline"].get<double>(),
+                   entry["subsampled"]["total"]["ratio_to_roofline"].get<double>());
       }
     if (j.contains("guiding")) print_guiding(j["guiding"]);
     if (j.contains("velocity")) print_velocity(j["velocity"]);

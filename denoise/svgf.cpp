@@ -283,7 +283,7 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
     gpu::Bindings b = common;
     b.set("acc_colour", temp_[0]).set("acc_moments", temp_[1]).set("out_colour", history_);
     b.set("hist_moments", moments_);
-    variance_pass_.dispatch(cmd, b, nullptr, gx, gy);
+    variance_pass_.dispatch(cmd, b, nullptr, gx, gpu::div_up(height_, 8 * glsl::SVGF_VARIANCE_ROWS));
   }
   end();
   // history_ now holds (colour, sigma), the first iteration's input. That iteration's output becomes the

@@ -77,6 +77,9 @@ class Svgf {
 
   const gpu::Buffer& output() const { return taa_; }       // half rgb + sigma per pixel (see taa.comp)
   const gpu::Buffer& moments() const { return moments_; }  // SVGF_MOMENTS_STRIDE floats per pixel
+  // Adaptive mode: per 8x8 block (row-major) the firefly low, up and adaptivity low, up percentiles of the
+  // last run()'s input (percentiles.comp).
+  const gpu::Buffer& percentiles() const { return percentiles_; }
   // Geometry "virtual_points" only: the virtual point depth accumulated over the history (float bits, then
   // its gradient: 2 words per pixel, the depth first), as the last run() left it; else nullptr.
   const gpu::Buffer* geometry_depth() const { return geo_.valid() ? &geo_ : nullptr; }

@@ -879,8 +879,13 @@ TEST_F(Cli, BenchReportsRatiosAsJson) {
   EXPECT_GT(j["passes"]["trace"]["ratio_to_copy"].get<double>(), 0.0);
   EXPECT_GT(j["bvh"]["gpu_over_embree"].get<double>(), 0.0);
   EXPECT_GT(j["density_lookups_per_s"].get<double>(), 0.0);
-  for (const char* kernel : {"5x5", "subsampled"})
+  for (const char* kernel : {"5x5", "subsampled"}) {
     EXPECT_GT(j["svgf_surface"]["24x16"][kernel]["total"]["ratio_to_copy"].get<double>(), 0.0) << kernel;
+    EXPECT_GT(j["svgf_surface"]["24x16"][kernel]["total"]["ratio_to_roofline"].get<double>(), 0.0) << kernel;
+  }
+  // The roofline moves 124 bytes per pixel (bench.cpp, kSvgfRooflineRead + kSvgfRooflineWritten).
+  EXPECT_EQ(j["svgf_surface"]["24x16"]["roofline_bytes_per_pixel"]["read"].get<size_t>(), 96u);
+  EXPECT_EQ(j["svgf_surface"]["24x16"]["roofline_bytes_per_pixel"]["written"].get<size_t>(), 28u);
   for (const auto& e : j["guiding"]["equal_time"])
     EXPECT_GT(e["relmse_ratio_unguided_over_guided"]["mean"].get<double>(), 0.0);
   for (const char* key : {"volume_denoiser", "volume_occluder"})

@@ -79,6 +79,7 @@ class Rig {
     });
     return svgf_.download();
   }
+  const denoise::Svgf& svgf() const { return svgf_; }
 
  private:
   int W_, H_;
@@ -317,6 +318,76 @@ TEST(Svgf, MotionLeavingTheScreenReusesTheBorder) {
   EXPECT_EQ(context().validation_messages(), 0u);
 }
 
+// The percentiles pass against a sort on the CPU: per 8x8 block the interpolated quantiles of the pixels'
+// luminances and of the 2x2 quad means, on an image whose last blocks are cut in both directions (37x21),
+// with ties, negative and non-finite inputs (both count as luminance 0). Seen to fail when the bitonic sort's
+// last merge (k = 64) was left out (each block's two sorted halves: 30 of the 15 blocks' 60 values wrong, the
+// firefly pair of every block) and when the cut blocks ranked all 64 slots (n = 64, the +inf padding among
+// the ranks: 14 wrong, the firefly pair of the 7 cut blocks).
+TEST(Svgf, PercentilesMatchASortOnTheCpu) {
+  const int W = 37, H = 21, BX = (W + 7) / 8, BY = (H + 7) / 8;
+  Frame f = two_planes(W, H);
+  std::mt19937 rng(13);
+  std::exponential_distribution<float> expo(1.f);
+  std::vector<glm::vec3> in(size_t(W) * H);
+  for (size_t p = 0; p < in.size(); ++p) {
+    in[p] = glm::vec3(expo(rng), expo(rng), expo(rng));
+    if (p % 7 == 0) in[p] = glm::round(in[p] * 2.f) * 0.5f;  // ties
+  }
+  in[3] = glm::vec3(NAN, 1.f, 1.f);
+  in[50] = glm::vec3(INFINITY, 0.f, 0.f);
+  in[W * 9 + 33] = glm::vec3(-2.f, 0.1f, 0.f);
+  SvgfParams params;
+  params.firefly_low = 0.25f;
+  params.firefly_up = 0.9f;
+  params.adapt_low = 0.19f;
+  params.adapt_up = 0.907f;
+  Rig rig(W, H, params);
+  rig.run(f, in);
+  std::vector<glm::vec4> gpu = rig.svgf().percentiles().download_vector<glm::vec4>();
+  ASSERT_GE(gpu.size(), size_t(BX * BY));
+  auto lum = [&](int x, int y) {
+    glm::vec3 c = in[size_t(y) * W + x];
+    float l = glm::dot(c, glm::vec3(0.2126f, 0.7152f, 0.0722f));
+    return std::isfinite(c.x) && std::isfinite(c.y) && std::isfinite(c.z) && std::isfinite(l)
+               ? std::max(l, 0.f)
+               : 0.f;
+  };
+  auto quantile = [](std::vector<float> v, float q) {
+    std::sort(v.begin(), v.end());
+    float x = q * float(v.size() - 1);
+    size_t i = size_t(x), j = std::min(i + 1, v.size() - 1);
+    return v[i] + (v[j] - v[i]) * (x - float(i));
+  };
+  int wrong = 0;
+  for (int by = 0; by < BY; ++by)
+    for (int bx = 0; bx < BX; ++bx) {
+      std::vector<float> pixels, quads;
+      for (int y = by * 8; y < std::min(by * 8 + 8, H); ++y)
+        for (int x = bx * 8; x < std::min(bx * 8 + 8, W); ++x) pixels.push_back(lum(x, y));
+      for (int qy = by * 8; qy < std::min(by * 8 + 8, H); qy += 2)
+        for (int qx = bx * 8; qx < std::min(bx * 8 + 8, W); qx += 2) {
+          float sum = 0.f, m = 0.f;
+          for (int k = 0; k < 4; ++k) {
+            int x = qx + (k & 1), y = qy + (k >> 1);
+            if (x < std::min(bx * 8 + 8, W) && y < std::min(by * 8 + 8, H)) sum += lum(x, y), m += 1.f;
+          }
+          quads.push_back(sum / m);
+        }
+      const glm::vec4 cpu(quantile(pixels, params.firefly_low), quantile(pixels, params.firefly_up),
+                          quantile(quads, params.adapt_low), quantile(quads, params.adapt_up));
+      const glm::vec4 g = gpu[size_t(by) * BX + bx];
+      for (int c = 0; c < 4; ++c) {
+        // Float rounding of the luminance and the quad means only (measured: at most 7.3e-8 here).
+        const bool ok = std::abs(g[c] - cpu[c]) <= 2.5e-7f * (1.f + std::abs(cpu[c]));
+        wrong += !ok;
+        EXPECT_TRUE(ok) << "block " << bx << "," << by << " value " << c << ": gpu " << g[c] << " cpu "
+                        << cpu[c];
+      }
+    }
+  EXPECT_EQ(wrong, 0);
+}
+
 // Each percentile-driven mechanism changes the output when switched off: the firefly clamp (firefly_bias
 // so large that only the hard clamp firefly_max is left), the adaptive history cap (adapt_strength 0) and
 // border reuse (border_history 1).
@@ -538,7 +609,7 @@ TEST(Svgf, VirtualPointGeometryIsTheMedianDepthAndItsGradient) {
     }
   std::cout << "geometry against the CPU: worst relative depth difference " << worst_z << ", gradient "
             << worst_g << "\n";
-  EXPECT_LT(worst_z, 1e-6);  // the same float operations up to (Y z) / Y
+  EXPECT_LT(worst_z, 1e-6);    // the same float operations up to (Y z) / Y
   EXPECT_LT(worst_g, 1.2e-3);  // half floats: measured 4.0e-4
   EXPECT_EQ(context().validation_messages(), 0u);
 }

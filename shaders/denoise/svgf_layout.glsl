@@ -22,6 +22,8 @@ struct SvgfGpuParams {
 // Per-pixel words of the half-float buffers: uvec2(packHalf2x16(r, g), packHalf2x16(b, a)).
 // Moments buffer: float m1, m2, history length n per pixel.
 const uint SVGF_MOMENTS_STRIDE = 3u;
+// Pixels (a column) per invocation of the variance pass.
+const uint SVGF_VARIANCE_ROWS = 8u;
 // Largest value stored in half floats (colour and sigma saturate there).
 const float SVGF_HALF_MAX = 65000.0;
 
