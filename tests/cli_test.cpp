@@ -868,10 +868,10 @@ TEST_F(Cli, CompareImagesAndSequences) {
 }
 
 TEST_F(Cli, BenchReportsRatiosAsJson) {
+  // The shaft part runs only when named.
   auto r = run(fmt::format(
       "bench --json --size 16x16 --spp 1 --denoise-sizes 24x16 --guiding-size 16x12 --guiding-seeds 1 "
-      "--only first_frame,passes,bvh,svgf,guiding,velocity,volume_repr,view,shafts "  // shafts runs when
-                                                                                      // named
+      "--only first_frame,passes,bvh,svgf,guiding,velocity,volume_repr,view,shafts "
       "--shafts-size 24x16 --shafts-frames 2 --shafts-reference-spp 4 --reference-dir {}",
       (dir / "refs").string()));
   ASSERT_EQ(r.code, 0) << r.out;
