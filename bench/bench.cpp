@@ -16,6 +16,7 @@
 
 #include "bench/bench_util.hpp"
 #include "bench/guiding_bench.hpp"
+#include "bench/light_choice_bench.hpp"
 #include "bench/velocity_bench.hpp"
 #include "bench/volume_repr_bench.hpp"
 #include "denoise/svgf.hpp"
@@ -408,6 +409,14 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
             "means over seeds (per seed {:.2f}..{:.2f}); >1: velocity wins",
             r["min"].get<double>(), r["max"].get<double>()));
   }
+  if (j.contains("light_choice")) {
+    const auto& r = j["light_choice"]["variance_ratio_uniform_over_power_per_seed"];
+    add("light choice uniform/power", j["light_choice"]["variance_ratio_uniform_over_power"],
+        fmt::format(
+            "per-pixel variance of L with one bright and many dim point lights, uniform / power "
+            "choice at equal samples, ratio of means over seeds (per seed {:.2f}..{:.2f}); >1: power wins",
+            r["min"].get<double>(), r["max"].get<double>()));
+  }
   if (j.contains("volume_repr"))
     for (const auto& g : j["volume_repr"]["grids"]) {
       const std::string id = g["name"];
@@ -437,8 +446,8 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
 }  // namespace
 
 const std::vector<std::string>& part_names() {
-  static const std::vector<std::string> names = {"first_frame", "passes",   "bvh",        "svgf",
-                                                 "guiding",     "velocity", "volume_repr"};
+  static const std::vector<std::string> names = {"first_frame", "passes",   "bvh",          "svgf",
+                                                 "guiding",     "velocity", "light_choice", "volume_repr"};
   return names;
 }
 
@@ -500,6 +509,13 @@ int run(const Options& o, const gpu::ContextOptions& co) {
     vo.height = gh;
     vo.seeds = o.guiding_seeds;
     j["velocity"] = bench_velocity(ctx, vo);
+  }
+  if (wants("light_choice") && o.guiding_seeds > 0) {
+    LightChoiceBenchOptions lo;
+    lo.width = gw;
+    lo.height = gh;
+    lo.seeds = o.guiding_seeds;
+    j["light_choice"] = bench_light_choice(ctx, lo);
   }
   if (wants("volume_repr")) {
     VolumeReprOptions vo;
@@ -579,6 +595,7 @@ int run(const Options& o, const gpu::ContextOptions& co) {
       }
     if (j.contains("guiding")) print_guiding(j["guiding"]);
     if (j.contains("velocity")) print_velocity(j["velocity"]);
+    if (j.contains("light_choice")) print_light_choice(j["light_choice"]);
     if (j.contains("volume_repr")) print_volume_repr(j["volume_repr"]);
   }
   if (messages > 0) {
