@@ -5,6 +5,7 @@
 #include <ImfHeader.h>
 #include <ImfInputFile.h>
 #include <ImfOutputFile.h>
+#include <ImfRgbaFile.h>
 #include <fmt/format.h>
 #include <stb/stb_image.h>
 #include <stb/stb_image_write.h>
@@ -56,6 +57,19 @@ void read_exr(const std::string& path, const std::string& where, EnvironmentMap&
       throw Error(fmt::format("{}: {}x{} is over 2^26 texels; scale it down", where, w, h));
     const Imf::ChannelList& ch = file.header().channels();
     const bool rgb = ch.findChannel("R") && ch.findChannel("G") && ch.findChannel("B");
+    if (!rgb && ch.findChannel("Y") && (ch.findChannel("RY") || ch.findChannel("BY"))) {
+      // Luminance and chroma (always half): OpenEXR's RGBA interface converts them to RGB.
+      m.width = uint32_t(w);
+      m.height = uint32_t(h);
+      Imf::RgbaInputFile yc(path.c_str());
+      std::vector<Imf::Rgba> px(size_t(w) * h);
+      yc.setFrameBuffer(px.data() - dw.min.x - int64_t(dw.min.y) * w, 1, size_t(w));
+      yc.readPixels(dw.min.y, dw.max.y);
+      m.texels.resize(px.size());
+      for (size_t i = 0; i < px.size(); ++i)
+        m.texels[i] = glm::vec3(float(px[i].r), float(px[i].g), float(px[i].b));
+      return;
+    }
     if (!rgb && !ch.findChannel("Y")) {
       std::string names;
       for (auto it = ch.begin(); it != ch.end(); ++it)

@@ -35,8 +35,8 @@ struct EnvironmentMap {
   uint64_t replaced() const { return nan + inf + negative; }
 };
 
-// Reads a map: OpenEXR (channels R, G, B, or Y for grey; half or float), Radiance .hdr, or 8/16-bit PNG
-// (and what else stb_image reads: JPEG, TGA, ...) decoded from sRGB. NaN, infinite and negative channel
+// Reads a map: OpenEXR (channels R, G, B; Y for grey; Y, RY, BY luminance-chroma; half or float), Radiance
+// .hdr, or 8/16-bit PNG (and what else stb_image reads: JPEG, TGA, ...) decoded from sRGB. NaN, infinite and negative channel
 // values are replaced by 0 and counted. Throws Error (one line naming `key` and the file) for a missing,
 // unreadable or undecodable file, missing channels, an empty image or one over 2^26 texels.
 EnvironmentMap read_environment_map(const std::string& path,

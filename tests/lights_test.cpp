@@ -10,12 +10,14 @@
 #include <ImfFrameBuffer.h>
 #include <ImfHeader.h>
 #include <ImfOutputFile.h>
+#include <ImfRgbaFile.h>
 #include <gtest/gtest.h>
 #include <stb/stb_image_write.h>
 
 #include <cmath>
 #include <filesystem>
 #include <glm/gtc/matrix_transform.hpp>
+#include <glm/gtx/component_wise.hpp>
 #include <iostream>
 #include <random>
 
@@ -214,6 +216,40 @@ TEST(EnvironmentMap, ReadsExrHdrAndPngAndCountsBadTexels) {
   EXPECT_EQ(c.negative, 1u);
   EXPECT_EQ(c.texels[0], glm::vec3(0, 0, 2));
   EXPECT_EQ(c.texels[3], glm::vec3(0, 1, 0));
+}
+
+// Grey (Y) and luminance-chroma (Y, RY, BY) OpenEXR maps are read as RGB: Y as grey at full float precision,
+// YC through OpenEXR's conversion (half, chroma subsampled: a constant colour comes back within half's
+// precision). Injected defect caught (measured): YC files read by the grey path (largest error 0.44, in B).
+TEST(EnvironmentMap, ReadsGreyAndLuminanceChromaExr) {
+  TempDir dir("haze_lights");
+  const std::string grey = (dir.path() / "grey.exr").string(), yc = (dir.path() / "yc.exr").string();
+  {
+    Imf::Header h(4, 2);
+    h.channels().insert("Y", Imf::Channel(Imf::FLOAT));
+    std::vector<float> v = {0.5f, 1e6f, 0, 2, 3, 4, 5, 6};
+    Imf::FrameBuffer fb;
+    fb.insert("Y", Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(v.data()), 4, 16));
+    Imf::OutputFile f(grey.c_str(), h);
+    f.setFrameBuffer(fb);
+    f.writePixels(2);
+  }
+  const lights::EnvironmentMap g = lights::read_environment_map(grey);
+  ASSERT_EQ(g.texels.size(), 8u);
+  EXPECT_EQ(g.texels[1], glm::vec3(1e6f));  // beyond half's range
+  EXPECT_EQ(g.texels[7], glm::vec3(6));
+  {
+    std::vector<Imf::Rgba> px(8 * 4, Imf::Rgba(0.2f, 0.5f, 0.9f, 1.f));
+    Imf::RgbaOutputFile f(yc.c_str(), 8, 4, Imf::WRITE_YC);
+    f.setFrameBuffer(px.data(), 1, 8);
+    f.writePixels(4);
+  }
+  const lights::EnvironmentMap c = lights::read_environment_map(yc);
+  ASSERT_EQ(c.texels.size(), 32u);
+  glm::vec3 worst(0);
+  for (const glm::vec3& t : c.texels) worst = glm::max(worst, glm::abs(t - glm::vec3(0.2f, 0.5f, 0.9f)));
+  std::cout << "  YC round trip, largest error " << worst.r << " " << worst.g << " " << worst.b << "\n";
+  EXPECT_LT(glm::compMax(worst), 0.01f);  // measured 0.004 (R)
 }
 
 // Runs f, expects a lights::Error whose one-line message has every piece.
