@@ -780,6 +780,58 @@ TEST(LightChoice, PowerAndUniformChoiceAgree) {
   EXPECT_EQ(context().validation_messages(), 0u);
 }
 
+// Maps at the extremes of what is valid: 1x1, one row, all black, light only in the rows at the poles (where
+// sin(theta) vanishes), a texel of 1e30 among ones with intensity 1e4, intensity 0, and power choice next to
+// a light 1e8 times brighter. Every layer stays finite and no sample is dropped as non-finite.
+TEST(EnvironmentMap, ExtremeMapsStayFinite) {
+  TempDir dir("haze_lights");
+  struct Case {
+    const char* name;
+    uint32_t w, h;
+    std::function<glm::vec3(uint32_t, uint32_t)> texel;
+    double intensity;
+  };
+  const std::vector<Case> cases = {
+      {"1x1", 1, 1, [](uint32_t, uint32_t) { return glm::vec3(0.5f, 1, 2); }, 1},
+      {"one row", 4, 1, [](uint32_t i, uint32_t) { return glm::vec3(float(i)); }, 1},
+      {"black", 8, 4, [](uint32_t, uint32_t) { return glm::vec3(0); }, 1},
+      {"poles", 16, 64, [](uint32_t, uint32_t j) { return glm::vec3(j == 0 || j == 63 ? 5.f : 0.f); }, 1},
+      {"hot texel", 64, 32,
+       [](uint32_t i, uint32_t j) { return glm::vec3(i == 40 && j == 10 ? 1e30f : 1.f); }, 1e4},
+      {"intensity 0", 8, 4, [](uint32_t, uint32_t) { return glm::vec3(1); }, 0},
+  };
+  for (const Case& c : cases) {
+    lights::EnvironmentMap m;
+    m.width = c.w;
+    m.height = c.h;
+    for (uint32_t j = 0; j < c.h; ++j)
+      for (uint32_t i = 0; i < c.w; ++i) m.texels.push_back(c.texel(i, j));
+    const std::string file = (dir.path() / "m.exr").string();
+    lights::write_environment_map(file, m);
+    json j = map_scene(file, 10);
+    j["lights"]["environment"]["intensity"] = c.intensity;
+    j["lights"]["points"] = {{{"position", {0, 1, 0}}, {"intensity", 1e8}}};
+    j["camera"] = {{"position", {0, 0.6, 3}}, {"target", {0, 0.3, 0}}, {"fov_y", 70}};
+    j["haze"] = {{"sigma_t", 0.3},
+                 {"albedo", {0.9, 0.9, 0.9}},
+                 {"bounded", true},
+                 {"bounds_min", {-1, 0, -1}},
+                 {"bounds_max", {1, 1, 1}}};
+    j["surfaces"] = {
+        {{"mesh", {{"kind", "plane"}, {"size", {4, 4}}}}, {"transform", {{"rotate", {-90, 0, 0}}}}}};
+    j["render"]["max_depth"] = 3;
+    render::Renderer r(context(), make_scene(j));
+    r.add_samples(4);
+    const render::Image img = r.resolve();
+    int bad = 0;
+    for (float x : img.data) bad += !std::isfinite(x);
+    for (float x : r.accum()) bad += !std::isfinite(x);
+    EXPECT_EQ(bad, 0) << c.name;
+    EXPECT_EQ(img.non_finite, 0u) << c.name;
+  }
+  EXPECT_EQ(context().validation_messages(), 0u);
+}
+
 // ---------------------------------------------------------------------------------------------------------
 // Costs and reuse.
 
