@@ -21,6 +21,13 @@ struct Options {
   std::string guiding_size = "96x54";               // guided vs unguided, volume denoiser figures
   int guiding_seeds = 4;                            // 0: skip those figures
   std::string only;                                 // comma-separated part names; empty: all
+  // The shaft sequence (bench/shafts_bench.hpp).
+  std::string shafts_size = "192x108";
+  int shafts_frames = 12;
+  int shafts_reference_spp = 1024;
+  std::string reference_dir;  // the shaft references' cache; "": $XDG_CACHE_HOME/haze/references
+  std::string images_dir;     // PNGs of the shaft sequence's frames 0, 4 and the last; "": none
+  std::string shafts_set;     // JSON merged into the shaft scene (e.g. '{"denoise": {"volume": {...}}}')
 };
 
 // The parts `only` names (all when empty); throws a one-line error naming an unknown part and listing the

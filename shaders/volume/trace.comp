@@ -27,7 +27,9 @@ PIXEL_LAYER(acc_surf);
 PIXEL_LAYER(acc_surf2);
 PIXEL_LAYER(acc_demod);
 PIXEL_LAYER(acc_demod2);
-PIXEL_LAYER(acc_emit);
+#ifdef BINDING_acc_emit
+PIXEL_LAYER(acc_emit);  // scenes with emissive surfaces only
+#endif
 PIXEL_LAYER(acc_vp);
 layout(std430, binding = BINDING_counters) buffer Counters {
   uint counters[];  // COUNT_*
@@ -167,7 +169,9 @@ void main() {
 #if HAZE_SURFACES
         GpuInstance inst = instances[cam_h.instance];
         L_surf = r.T * inst.emission.rgb;
-        E_surf = L_surf;
+#ifdef BINDING_acc_emit
+        E_surf = L_surf;  // else the scene has no emissive surface and E_surf stays 0 (folded away)
+#endif
         x = cam_o + cam_d * t_s;
         n = dot(cam_h.normal, cam_d) < 0.0f ? cam_h.normal : -cam_h.normal;
         ns = surface_normal(cam_h, n);
@@ -429,7 +433,9 @@ void main() {
   acc_surf2[pixel] += vec4(square_capped(L_surf, clamped), 0.0f);
   acc_demod[pixel] += vec4(demod, 0.0f);
   acc_demod2[pixel] += vec4(square_capped(demod, clamped), 0.0f);
+#ifdef BINDING_acc_emit
   acc_emit[pixel] += vec4(E_surf, 0.0f);
+#endif
   if (clamped) atomicAdd(counters[COUNT_CLAMPED_SQUARES], 1u);
   acc_vp[pixel] += vec4(vp_wt, vp_w, vp_g, vp_gn);
 }
