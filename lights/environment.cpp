@@ -47,7 +47,8 @@ bool is_exr(const std::string& path) {
   return in.gcount() == 4 && magic[0] == 0x76 && magic[1] == 0x2f && magic[2] == 0x31 && magic[3] == 0x01;
 }
 
-void read_exr(const std::string& path, const std::string& where, EnvironmentMap& m) {
+// header_only: the checks of the header (size, channels) without reading the pixels.
+void read_exr(const std::string& path, const std::string& where, EnvironmentMap& m, bool header_only) {
   try {
     Imf::InputFile file(path.c_str());
     const auto dw = file.header().dataWindow();
@@ -59,6 +60,7 @@ void read_exr(const std::string& path, const std::string& where, EnvironmentMap&
     const bool rgb = ch.findChannel("R") && ch.findChannel("G") && ch.findChannel("B");
     if (!rgb && ch.findChannel("Y") && (ch.findChannel("RY") || ch.findChannel("BY"))) {
       // Luminance and chroma (always half): OpenEXR's RGBA interface converts them to RGB.
+      if (header_only) return;
       m.width = uint32_t(w);
       m.height = uint32_t(h);
       Imf::RgbaInputFile yc(path.c_str());
@@ -77,6 +79,7 @@ void read_exr(const std::string& path, const std::string& where, EnvironmentMap&
       throw Error(fmt::format("{}: needs channels R, G, B (or Y), has {}; write the radiance as R, G, B",
                               where, names.empty() ? "none" : names));
     }
+    if (header_only) return;
     m.width = uint32_t(w);
     m.height = uint32_t(h);
     std::vector<float> planes[3];
@@ -102,7 +105,7 @@ void read_exr(const std::string& path, const std::string& where, EnvironmentMap&
   }
 }
 
-void read_stb(const std::string& path, const std::string& where, EnvironmentMap& m) {
+void read_stb(const std::string& path, const std::string& where, EnvironmentMap& m, bool header_only) {
   FILE* f = std::fopen(path.c_str(), "rb");
   if (!f) throw Error(fmt::format("{}: cannot open: {}", where, std::strerror(errno)));
   std::unique_ptr<FILE, decltype(&std::fclose)> file(f, &std::fclose);
@@ -113,6 +116,7 @@ void read_stb(const std::string& path, const std::string& where, EnvironmentMap&
   if (w <= 0 || h <= 0) throw Error(fmt::format("{}: the image is empty", where));
   if (size_t(w) * size_t(h) > kMaxTexels)
     throw Error(fmt::format("{}: {}x{} is over 2^26 texels; scale it down", where, w, h));
+  if (header_only) return;
   m.width = uint32_t(w);
   m.height = uint32_t(h);
   m.texels.resize(size_t(w) * h);
@@ -164,9 +168,7 @@ void fixed_point_cdf(const double* f, size_t count, float* out) {
   }
 }
 
-}  // namespace
-
-EnvironmentMap read_environment_map(const std::string& path, const std::string& key) {
+EnvironmentMap read_map(const std::string& path, const std::string& key, bool header_only) {
   const std::string where = fmt::format("{} {}", key, path);
   std::error_code ec;
   if (!fs::exists(path, ec)) throw Error(fmt::format("{}: no such file; check the path", where));
@@ -174,9 +176,10 @@ EnvironmentMap read_environment_map(const std::string& path, const std::string& 
     throw Error(fmt::format("{}: not a regular file; name an .exr, .hdr or .png image", where));
   EnvironmentMap m;
   if (is_exr(path))
-    read_exr(path, where, m);
+    read_exr(path, where, m, header_only);
   else
-    read_stb(path, where, m);
+    read_stb(path, where, m, header_only);
+  if (header_only) return m;
   for (glm::vec3& t : m.texels)
     for (int c = 0; c < 3; ++c) {
       float& v = t[c];
@@ -188,6 +191,16 @@ EnvironmentMap read_environment_map(const std::string& path, const std::string& 
         ++m.negative, v = 0;
     }
   return m;
+}
+
+}  // namespace
+
+EnvironmentMap read_environment_map(const std::string& path, const std::string& key) {
+  return read_map(path, key, false);
+}
+
+void check_environment_map(const std::string& path, const std::string& key) {
+  read_map(path, key, true);
 }
 
 void write_environment_map(const std::string& path, const EnvironmentMap& m) {

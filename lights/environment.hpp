@@ -36,11 +36,15 @@ struct EnvironmentMap {
 };
 
 // Reads a map: OpenEXR (channels R, G, B; Y for grey; Y, RY, BY luminance-chroma; half or float), Radiance
-// .hdr, or 8/16-bit PNG (and what else stb_image reads: JPEG, TGA, ...) decoded from sRGB. NaN, infinite and negative channel
-// values are replaced by 0 and counted. Throws Error (one line naming `key` and the file) for a missing,
-// unreadable or undecodable file, missing channels, an empty image or one over 2^26 texels.
+// .hdr, or 8/16-bit PNG (and what else stb_image reads: JPEG, TGA, ...) decoded from sRGB. NaN, infinite and
+// negative channel values are replaced by 0 and counted. Throws Error (one line naming `key` and the file)
+// for a missing, unreadable or undecodable file, missing channels, an empty image or one over 2^26 texels.
 EnvironmentMap read_environment_map(const std::string& path,
                                     const std::string& key = "lights.environment.file");
+
+// The checks of read_environment_map that need only the file's header (existence, format, size, channels),
+// for refusing a bad map before the device starts.
+void check_environment_map(const std::string& path, const std::string& key = "lights.environment.file");
 
 // Writes a map as OpenEXR (.exr, float RGB) or Radiance HDR (.hdr), to a temporary renamed into place.
 void write_environment_map(const std::string& path, const EnvironmentMap& map);
