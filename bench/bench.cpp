@@ -444,6 +444,17 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
             "per-pixel variance of L with one bright and many dim point lights, uniform / power "
             "choice at equal samples, ratio of means over seeds (per seed {:.2f}..{:.2f}); >1: power wins",
             r["min"].get<double>(), r["max"].get<double>()));
+    const auto& tc = j["light_choice"]["trace_time_ratio_power_over_uniform"];
+    const auto& te = j["light_choice"]["trace_time_ratio_map_over_constant"];
+    add("light choice power/uniform time", tc["median"],
+        fmt::format("trace time per sample of the same scene, choice by power / uniform, median of adjacent "
+                    "pairs ({:.2f}..{:.2f})",
+                    tc["min"].get<double>(), tc["max"].get<double>()));
+    add("env map/constant time", te["median"],
+        fmt::format(
+            "trace time per sample of a hazy room lit by a 512x256 map of one radiance / by the constant "
+            "environment of that radiance (the map code's cost), median of adjacent pairs ({:.2f}..{:.2f})",
+            te["min"].get<double>(), te["max"].get<double>()));
   }
   if (j.contains("volume_repr"))
     for (const auto& g : j["volume_repr"]["grids"]) {
