@@ -149,6 +149,8 @@ TEST(ViewPanel, EveryDeclaredKeyHasAWidget) {
                                        {"points", {nlohmann::json::object()}},
                                        {"spots", {nlohmann::json::object()}},
                                        {"environment", nlohmann::json::object()}}}});
+  // Optional groups a procedural medium cannot hold are drawn present (the panel does not validate).
+  s.media[0].velocity.emplace();
   ImGui::CreateContext();
   ImGuiIO& io = ImGui::GetIO();
   io.IniFilename = nullptr;
