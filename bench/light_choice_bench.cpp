@@ -24,7 +24,7 @@ struct Moments {
   double variance = 0, mean = 0;
 };
 Moments moments(const render::Renderer& r) {
-  const std::vector<float> acc = r.accum();
+  const std::vector<double> acc = r.accum();
   const size_t pixels = acc.size() / glsl::ACC_STRIDE;
   const double n = r.samples();
   Moments m;
