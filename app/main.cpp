@@ -18,6 +18,7 @@
 #include "eval/report.hpp"
 #include "eval/sweep.hpp"
 #include "gpu/gpu.hpp"
+#include "lights/environment.hpp"
 #include "render/denoise_sequence.hpp"
 #include "render/output.hpp"
 #include "render/renderer.hpp"
@@ -388,6 +389,24 @@ int main(int argc, char** argv) {
   info->add_option("file", info_file, ".vdb file")->required();
   info->add_flag("--json", info_json, "machine-readable output");
 
+  auto* envcmd = app.add_subcommand("envmap", "make environment maps");
+  envcmd->require_subcommand(1);
+  auto* env_make = envcmd->add_subcommand(
+      "make", "write a generated sky (blue gradient, brown ground, a sun disc) as a latitude-longitude map");
+  std::string env_out;
+  haze::lights::SkyParams sky;
+  env_make->add_option("--out", env_out, "output .exr or .hdr file")->required();
+  env_make->add_option("--width", sky.width, "pixels across (360 degrees)")->check(CLI::Range(2, 16384));
+  env_make->add_option("--height", sky.height, "pixels down (180 degrees)")->check(CLI::Range(1, 8192));
+  env_make->add_option("--sun-elevation", sky.sun_elevation, "degrees above the horizon")
+      ->check(CLI::Range(-90.0, 90.0));
+  env_make->add_option("--sun-azimuth", sky.sun_azimuth, "degrees from -z towards +x")
+      ->check(CLI::Range(-360.0, 360.0));
+  env_make->add_option("--sun-size", sky.sun_size, "angular diameter of the sun disc, degrees")
+      ->check(CLI::Range(0.0, 90.0));
+  env_make->add_option("--sun-radiance", sky.sun_radiance, "radiance of the sun disc")
+      ->check(CLI::Range(0.0, 1e9));
+
   auto* bench = app.add_subcommand(
       "bench", "the benchmark suite: ratios measured in one run on one device (docs/benchmarks.md)");
   haze::bench::Options bo;
@@ -488,6 +507,11 @@ int main(int argc, char** argv) {
       else
         fmt::print("wrote {} files {} .. {}\n", last - first + 1, scene::frame_file(vdb_out, first),
                    scene::frame_file(vdb_out, last));
+      return 0;
+    }
+    if (*env_make) {
+      haze::lights::write_environment_map(env_out, haze::lights::make_sky(sky));
+      fmt::print("wrote {} ({}x{})\n", env_out, sky.width, sky.height);
       return 0;
     }
     if (*info) {

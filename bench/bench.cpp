@@ -17,6 +17,7 @@
 #include "bench/bench_util.hpp"
 #include "bench/efficiency_bench.hpp"
 #include "bench/guiding_bench.hpp"
+#include "bench/light_choice_bench.hpp"
 #include "bench/shafts_bench.hpp"
 #include "bench/velocity_bench.hpp"
 #include "bench/view_bench.hpp"
@@ -469,6 +470,25 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
             "means over seeds (per seed {:.2f}..{:.2f}); >1: velocity wins",
             r["min"].get<double>(), r["max"].get<double>()));
   }
+  if (j.contains("light_choice")) {
+    const auto& r = j["light_choice"]["variance_ratio_uniform_over_power_per_seed"];
+    add("light choice uniform/power", j["light_choice"]["variance_ratio_uniform_over_power"],
+        fmt::format(
+            "per-pixel variance of L with one bright and many dim point lights, uniform / power "
+            "choice at equal samples, ratio of means over seeds (per seed {:.2f}..{:.2f}); >1: power wins",
+            r["min"].get<double>(), r["max"].get<double>()));
+    const auto& tc = j["light_choice"]["trace_time_ratio_power_over_uniform"];
+    const auto& te = j["light_choice"]["trace_time_ratio_map_over_constant"];
+    add("light choice power/uniform time", tc["median"],
+        fmt::format("trace time per sample of the same scene, choice by power / uniform, median of adjacent "
+                    "pairs ({:.2f}..{:.2f})",
+                    tc["min"].get<double>(), tc["max"].get<double>()));
+    add("env map/constant time", te["median"],
+        fmt::format(
+            "trace time per sample of a hazy room lit by a 512x256 map of one radiance / by the constant "
+            "environment of that radiance (the map code's cost), median of adjacent pairs ({:.2f}..{:.2f})",
+            te["min"].get<double>(), te["max"].get<double>()));
+  }
   if (j.contains("efficiency"))
     for (const auto& c : j["efficiency"]["cases"]) {
       const std::string name = c["case"];
@@ -534,9 +554,9 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
 }  // namespace
 
 const std::vector<std::string>& part_names() {
-  static const std::vector<std::string> names = {"first_frame", "passes",    "bvh",         "svgf",
-                                                 "guiding",     "velocity",  "volume_repr", "view",
-                                                 "shafts",      "efficiency"};
+  static const std::vector<std::string> names = {"first_frame", "passes",   "bvh",          "svgf",
+                                                 "guiding",     "velocity", "light_choice", "volume_repr",
+                                                 "view",        "shafts",   "efficiency"};
   return names;
 }
 
@@ -631,6 +651,13 @@ int run(const Options& o, const gpu::ContextOptions& co) {
     vo.height = gh;
     vo.seeds = o.guiding_seeds;
     j["velocity"] = bench_velocity(ctx, vo);
+  }
+  if (wants("light_choice") && o.guiding_seeds > 0) {
+    LightChoiceBenchOptions lo;
+    lo.width = gw;
+    lo.height = gh;
+    lo.seeds = o.guiding_seeds;
+    j["light_choice"] = bench_light_choice(ctx, lo);
   }
   if (wants("volume_repr")) {
     VolumeReprOptions vo;
@@ -732,6 +759,7 @@ int run(const Options& o, const gpu::ContextOptions& co) {
       }
     if (j.contains("guiding")) print_guiding(j["guiding"]);
     if (j.contains("velocity")) print_velocity(j["velocity"]);
+    if (j.contains("light_choice")) print_light_choice(j["light_choice"]);
     if (j.contains("volume_repr")) print_volume_repr(j["volume_repr"]);
     if (j.contains("efficiency")) print_efficiency(j["efficiency"]);
     if (j.contains("view")) print_view(j["view"]);

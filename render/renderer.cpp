@@ -195,7 +195,22 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   surfaces_.update(s, p);
   std::vector<lights::Emitter> emitters;
   for (const auto& e : surfaces_.geometry().emitters) emitters.push_back({e.v0, e.v1, e.v2, e.radiance});
-  lights_.update(s.lights, emitters);
+  // What the camera may see, for weighing distant lights against local ones.
+  lights::Bounds bounds;
+  bounds.add(s.camera.position);
+  if (media_.hetero()) {
+    bounds.add(media_.host().majorant.world_min);
+    bounds.add(media_.host().majorant.world_max);
+  }
+  if (s.haze && s.haze->bounded) {
+    bounds.add(s.haze->bounds_min);
+    bounds.add(s.haze->bounds_max);
+  }
+  if (surfaces_.any() && !surfaces_.geometry().bvh.nodes.empty()) {
+    bounds.add(glm::vec3(surfaces_.geometry().bvh.nodes[0].bmin_left_or_first));
+    bounds.add(glm::vec3(surfaces_.geometry().bvh.nodes[0].bmax_count));
+  }
+  lights_.update(s.lights, emitters, bounds);
   // Guiding learns where light scatters towards the camera: it needs a medium and a light, and the default
   // estimator's distance sampling on camera rays (volpath has none).
   const bool guided = s.guiding.enabled && media_.any() && lights_.any() && s.render.estimator == "default";
@@ -700,6 +715,8 @@ std::vector<std::string> Renderer::notes() const {
   std::vector<std::string> n = media_.notes();
   const auto& g = surfaces_.geometry().notes;
   n.insert(n.end(), g.begin(), g.end());
+  const auto l = lights_.notes();
+  n.insert(n.end(), l.begin(), l.end());
   return n;
 }
 

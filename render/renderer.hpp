@@ -179,6 +179,7 @@ class Renderer {
   bool has_feature(std::string_view name) const;
   const volume::DeviceMedia& media() const { return media_.host(); }
   const volume::Media& device_media() const { return media_; }
+  const lights::Lights& lights() const { return lights_; }
   const gpu::Buffer& scene_buffer() const { return scene_buf_; }
   // What loading the scene changed or dropped (clamped g, dropped triangles, ...), one line each.
   std::vector<std::string> notes() const;

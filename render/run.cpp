@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 
+#include "lights/environment.hpp"
 #include "render/output.hpp"
 #include "scene/animation.hpp"
 #include "surfaces/scene_geometry.hpp"
@@ -27,6 +28,8 @@ void check_part_specs(const scene::Scene& s) {
         if (m.velocity) vdb::check_velocity_name(m.file, m.velocity->grid, where + ".velocity.grid");
       }
     }
+    if (s.lights.environment && !s.lights.environment->file.empty())
+      lights::check_environment_map(s.lights.environment->file, "lights.environment.file");
     for (size_t i = 0; i < s.surfaces.size(); ++i)
       if (s.surfaces[i].mesh)
         surfaces::mesh_from_json(*s.surfaces[i].mesh, fmt::format("surfaces[{}].mesh", i));

@@ -211,6 +211,16 @@ Scene read_scene(const json& j, const ReadContext& ctx, const std::string& base_
       m.file = (fs::path(base_dir) / m.file).lexically_normal().string();
     }
   }
+  if (auto& env = s.lights.environment; env && !env->file.empty()) {
+    // A map's radiance is scaled by intensity alone: a tint would be a second meaning of color.
+    if (env->color != glm::vec3(0))
+      ctx.fail("lights.environment.color",
+               fmt::format("[{}, {}, {}] together with lights.environment.file: the map gives the radiance "
+                           "(scaled by intensity); remove color, or remove file for a constant environment",
+                           env->color.x, env->color.y, env->color.z));
+    if (!base_dir.empty() && fs::path(env->file).is_relative())
+      env->file = (fs::path(base_dir) / env->file).lexically_normal().string();
+  }
   detail::check_animation(s, ctx);
   return s;
 }
@@ -281,6 +291,14 @@ Scene load(const std::string& path, const std::vector<std::string>& overrides) {
   for (size_t i = 0; i < s.media.size(); ++i)
     if (!is_sequence(s.media[i].file))
       require_file(fmt::format("media[{}].file", i), s.media[i].file, written("media", i, "file"));
+  if (const auto& env = s.lights.environment; env) {
+    const nlohmann::json* v =
+        j.contains("lights") && j["lights"].is_object() && j["lights"].contains("environment") &&
+                j["lights"]["environment"].is_object() && j["lights"]["environment"].contains("file")
+            ? &j["lights"]["environment"]["file"]
+            : nullptr;
+    require_file("lights.environment.file", env->file, v && v->is_string() ? v->get<std::string>() : "");
+  }
   for (size_t i = 0; i < s.surfaces.size(); ++i) {
     require_file(fmt::format("surfaces[{}].file", i), s.surfaces[i].file, written("surfaces", i, "file"));
     require_file(fmt::format("surfaces[{}].albedo_texture", i), s.surfaces[i].albedo_texture,

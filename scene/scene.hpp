@@ -120,10 +120,14 @@ struct SpotLight {
   float falloff_angle = 5.f;  // degrees of smooth fade ending at the edge, [0, cone_angle]
 };
 
-// Constant radiance color * intensity from every direction.
+// Light arriving from infinitely far away in every direction: constant radiance color * intensity, or a
+// latitude-longitude map (file) times intensity, turned by rotate degrees about +y (lights/environment.hpp
+// says how a map's pixels face the world). A map and a nonzero color are refused together.
 struct Environment {
   glm::vec3 color{0};
   float intensity = 1.f;
+  std::string file;    // .exr, .hdr or .png; relative to the scene file's folder; "" for a constant
+  float rotate = 0.f;  // degrees about +y, counter-clockwise seen from above
 };
 
 struct Lights {
@@ -131,6 +135,7 @@ struct Lights {
   std::vector<PointLight> points;
   std::vector<SpotLight> spots;
   std::optional<Environment> environment;
+  std::string choice = "power";  // how next-event estimation picks a light: power | uniform
 };
 
 struct RenderSettings {
@@ -332,8 +337,14 @@ void reflect(V& v, SpotLight& s) {
 
 template <class V>
 void reflect(V& v, Environment& e) {
-  v.field("color", e.color, Range::at_least(0), "RGB radiance from every direction");
-  v.field("intensity", e.intensity, Range::at_least(0), "multiplier on color");
+  v.field("color", e.color, Range::at_least(0),
+          "RGB radiance from every direction; must stay [0, 0, 0] when file is given");
+  v.field("intensity", e.intensity, Range::at_least(0), "multiplier on color, or on the map's radiance");
+  v.field("file", e.file,
+          "latitude-longitude radiance map (OpenEXR .exr with R, G, B channels; Radiance .hdr; 8/16-bit "
+          ".png as sRGB), relative to the scene file's folder; \"\" for the constant color");
+  v.field("rotate", e.rotate, Range{-360, 360},
+          "degrees the map is turned about +y (counter-clockwise seen from above)");
 }
 
 template <class V>
@@ -341,7 +352,9 @@ void reflect(V& v, Lights& l) {
   v.field("sun", l.sun, "distant light with a small disc");
   v.field("points", l.points, "point lights");
   v.field("spots", l.spots, "spot lights");
-  v.field("environment", l.environment, "constant environment radiance");
+  v.field("environment", l.environment, "light from every direction: a constant radiance or a map");
+  v.field("choice", l.choice, Choices{"power", "uniform"},
+          "how next-event estimation picks one light: by estimated power (an alias table) or uniformly");
 }
 
 template <class V>

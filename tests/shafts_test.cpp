@@ -77,14 +77,16 @@ TEST(Shafts, SheetsMeanAndBlocksImproveOnTheFormerVolumeSettings) {
 
   // Energy: the volume instance's splat normalization keeps the mean (measured +0.4% to -2.1% over runs:
   // guiding learns in a different order each run, and the noisy input's own figure moves by as much, +0.7% to
-  // +3.1%); the former gather lost 16 to 17%. Catches: a splat pass that does not divide by the weight sums
-  // (measured -81%), and gather for the volume (the former settings).
+  // +3.1%); the former gather lost 16 to 17% with the lights chosen uniformly, 6.9 to 7.9% since the choice
+  // by power (issue 14) sends 96% of the shadow rays to the sun (a less noisy input). Catches: a splat pass
+  // that does not divide by the weight sums (measured -81%), and gather for the volume (the former settings).
   EXPECT_LT(std::abs(mean_now), 0.05);
-  EXPECT_LT(mean_former, -0.10);
-  // The surface instance keeps SVGF's gather by default (-18.5% here on this sequence's sparse noise); splat,
-  // the documented remedy, keeps the mean (measured -0.4%).
+  EXPECT_LT(mean_former, -0.04);
+  // The surface instance keeps SVGF's gather by default (-18.5% here on this sequence's sparse noise with
+  // uniform light choice, -8.1% with the choice by power); splat, the documented remedy, keeps the mean
+  // (measured -0.4%).
   EXPECT_LT(std::abs(surface_splat), 0.03);
-  EXPECT_LT(surface_gather, -0.10);
+  EXPECT_LT(surface_gather, -0.04);
   // Sheets: the contrast lost at frame 4 shrinks (measured -55% against -62%; at this size a sheet is 2-4
   // pixels wide), though far from the goal. Catches: filter_sigma "estimate" ignored (the luminance term
   // steered by one frame's sigma: measured a gain of 0.016 instead of 0.070). The volume's geometry alone
