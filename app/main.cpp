@@ -394,7 +394,7 @@ int main(int argc, char** argv) {
   bench->add_flag("--json", bo.json, "print JSON instead of a table");
   bench->add_option("--only", bo.only,
                     "run only these parts, comma-separated: first_frame, passes, bvh, svgf, guiding, "
-                    "velocity, volume_repr, view, shafts");
+                    "velocity, volume_repr, view, shafts, efficiency");
   bench->add_option("--size", bo.size, "image size WIDTHxHEIGHT");
   bench->add_option("--spp", bo.spp, "samples per measurement");
   bench->add_option("--denoise-sizes", bo.denoise_sizes, "sizes of the SVGF timings, WxH[,WxH...]");
@@ -404,6 +404,17 @@ int main(int argc, char** argv) {
       ->add_option("--guiding-seeds", bo.guiding_seeds,
                    "seeds of the guided/unguided comparison (0: skip it)")
       ->check(CLI::Range(0, 1000));
+  bench
+      ->add_option("--efficiency-seeds", bo.efficiency_seeds,
+                   "renders per estimator of the efficiency comparison (0: skip it)")
+      ->check(CLI::Range(0, 1000));
+  bench
+      ->add_option("--efficiency-scale", bo.efficiency_scale,
+                   "image sizes and sample counts of the efficiency cases, times this")
+      ->check(CLI::Range(0.05, 16.0));
+  bench->add_option("--efficiency-cases", bo.efficiency_cases,
+                    "efficiency cases, comma-separated: dense_cloud, haze_shaft, point_in_box, env_cloud, "
+                    "sheets (default: all)");
   bench->add_option("--shafts-size", bo.shafts_size, "image size of the shaft sequence (WIDTHxHEIGHT)");
   bench->add_option("--shafts-frames", bo.shafts_frames, "frames of the shaft sequence")
       ->check(CLI::Range(1, 10000));

@@ -15,6 +15,7 @@
 #include <sstream>
 
 #include "bench/bench_util.hpp"
+#include "bench/efficiency_bench.hpp"
 #include "bench/guiding_bench.hpp"
 #include "bench/shafts_bench.hpp"
 #include "bench/velocity_bench.hpp"
@@ -393,8 +394,9 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
   if (j.contains("guiding")) {
     for (const auto& e : j["guiding"]["equal_time"]) {
       const auto& r = e["relmse_ratio_unguided_over_guided"];
-      add(fmt::format("{} unguided/guided", e["scene"].get<std::string>()), r["mean"],
-          fmt::format("volume relMSE at equal GPU time, mean over seeds ({:.2f}..{:.2f}); >1: guiding wins",
+      add(fmt::format("{} unguided/guided", e["scene"].get<std::string>()), e["relmse_ratio_of_means"],
+          fmt::format("volume relMSE at equal GPU time, ratio of means over seeds (per seed {:.2f}..{:.2f}); "
+                      ">1: guiding wins",
                       r["min"].get<double>(), r["max"].get<double>()));
       rows.back()["min"] = r["min"];
       rows.back()["max"] = r["max"];
@@ -436,6 +438,18 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
             "means over seeds (per seed {:.2f}..{:.2f}); >1: velocity wins",
             r["min"].get<double>(), r["max"].get<double>()));
   }
+  if (j.contains("efficiency"))
+    for (const auto& c : j["efficiency"]["cases"]) {
+      const std::string name = c["case"];
+      const auto sides = c["sides"];
+      add(name == "sheets" ? "guiding.sheets" : "efficiency." + name, c["efficiency_ratio"],
+          fmt::format("1/(relMSE x time), {} / {}, ratio of means over seeds ({:.2f}..{:.2f}): {}",
+                      sides[0].get<std::string>(), sides[1].get<std::string>(),
+                      c["per_seed_ratio_min"].get<double>(), c["per_seed_ratio_max"].get<double>(),
+                      c["what"].get<std::string>()));
+      rows.back()["min"] = c["per_seed_ratio_min"];
+      rows.back()["max"] = c["per_seed_ratio_max"];
+    }
   if (j.contains("volume_repr"))
     for (const auto& g : j["volume_repr"]["grids"]) {
       const std::string id = g["name"];
@@ -489,14 +503,19 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
 }  // namespace
 
 const std::vector<std::string>& part_names() {
-  static const std::vector<std::string> names = {"first_frame", "passes",   "bvh",         "svgf",
-                                                 "guiding",     "velocity", "volume_repr", "view",
-                                                 "shafts"};
+  static const std::vector<std::string> names = {"first_frame", "passes",    "bvh",         "svgf",
+                                                 "guiding",     "velocity",  "volume_repr", "view",
+                                                 "shafts",      "efficiency"};
   return names;
 }
 
 std::vector<std::string> parse_only(const std::string& only) {
-  if (only.empty()) return part_names();
+  if (only.empty()) {
+    // The efficiency comparison takes minutes: it runs when named.
+    std::vector<std::string> all = part_names();
+    all.erase(std::find(all.begin(), all.end(), "efficiency"));
+    return all;
+  }
   std::set<std::string> wanted;
   for (const std::string& name : split(only, ',')) {
     if (std::find(part_names().begin(), part_names().end(), name) == part_names().end()) {
@@ -538,6 +557,15 @@ int run(const Options& o, const gpu::ContextOptions& co) {
   if (o.shafts_reference_spp < 1)
     throw std::runtime_error(fmt::format("--shafts-reference-spp {}: must be >= 1", o.shafts_reference_spp));
   if (o.spp < 1) throw std::runtime_error(fmt::format("--spp {}: must be >= 1", o.spp));
+  std::vector<std::string> efficiency_cases;
+  if (!o.efficiency_cases.empty())
+    for (const std::string& c : split(o.efficiency_cases, ',')) {
+      const auto& names = efficiency_case_names();
+      if (std::find(names.begin(), names.end(), c) == names.end())
+        throw std::runtime_error(
+            fmt::format("--efficiency-cases: unknown case '{}'; valid cases: {}", c, fmt::join(names, ", ")));
+      efficiency_cases.push_back(c);
+    }
 
   gpu::Context ctx(co);
   scene::Scene s = scene::from_json(bench_scene(w, h, o.spp), "bench scene", "");
@@ -575,6 +603,13 @@ int run(const Options& o, const gpu::ContextOptions& co) {
     VolumeReprOptions vo;
     vo.invocations = uint32_t(w) * uint32_t(h);
     j["volume_repr"] = bench_volume_repr(ctx, vo);
+  }
+  if (wants("efficiency") && o.efficiency_seeds > 0) {
+    EfficiencyOptions eo;
+    eo.seeds = o.efficiency_seeds;
+    eo.scale = o.efficiency_scale;
+    eo.cases = efficiency_cases;
+    j["efficiency"] = bench_efficiency(ctx, eo);
   }
   if (wants("view")) j["view"] = bench_view(co, s, ViewBenchOptions{});
   if (wants("shafts")) {
@@ -662,6 +697,7 @@ int run(const Options& o, const gpu::ContextOptions& co) {
     if (j.contains("guiding")) print_guiding(j["guiding"]);
     if (j.contains("velocity")) print_velocity(j["velocity"]);
     if (j.contains("volume_repr")) print_volume_repr(j["volume_repr"]);
+    if (j.contains("efficiency")) print_efficiency(j["efficiency"]);
     if (j.contains("view")) print_view(j["view"]);
     if (j.contains("shafts")) print_shafts(j["shafts"]);
   }

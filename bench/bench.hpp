@@ -20,6 +20,9 @@ struct Options {
   std::string denoise_sizes = "640x360,1920x1080";  // the SVGF instance's pass times at these sizes
   std::string guiding_size = "96x54";               // guided vs unguided, volume denoiser figures
   int guiding_seeds = 4;                            // 0: skip those figures
+  int efficiency_seeds = 4;                         // estimator efficiency: renders per side (0: skip)
+  double efficiency_scale = 1.0;                    // its image sizes and sample counts, times this
+  std::string efficiency_cases;                     // comma-separated case names; empty: all
   std::string only;                                 // comma-separated part names; empty: all
   // The shaft sequence (bench/shafts_bench.hpp).
   std::string shafts_size = "192x108";
@@ -30,8 +33,8 @@ struct Options {
   std::string shafts_set;     // JSON merged into the shaft scene (e.g. '{"denoise": {"volume": {...}}}')
 };
 
-// The parts `only` names (all when empty); throws a one-line error naming an unknown part and listing the
-// valid ones.
+// The parts `only` names (when empty: all but efficiency, which runs only when named); throws a one-line
+// error naming an unknown part and listing the valid ones.
 std::vector<std::string> parse_only(const std::string& only);
 
 int run(const Options& o, const gpu::ContextOptions& co);

@@ -35,12 +35,12 @@ inline constexpr uint32_t kReferenceSeed = 4000000007u;
 // FNV-1a 64 of `bytes` as 16 hex digits.
 std::string hash_key(std::string_view bytes);
 
-// The scene as the reference renders it: guiding on (its defaults; it applies where the scene has a medium
-// and a light), both denoisers off, kReferenceSeed.
+// The scene as the reference renders it: the default estimator, guiding on (its defaults; it applies where
+// the scene has a medium and a light), both denoisers off, kReferenceSeed.
 scene::Scene reference_scene(const scene::Scene& s);
 // What the key covers: the scene without its estimator-only settings (spp, seed, volume samples, majorant
-// resolution, equi-angular share, roulette threshold, outputs, preview, frames, guiding, denoise), the
-// contents of every file it reads (a sequence's by name: its files are checked per frame, frame_inputs),
+// resolution, equi-angular share, roulette threshold, estimator, outputs, preview, frames, guiding, denoise),
+// the contents of every file it reads (a sequence's by name: its files are checked per frame, frame_inputs),
 // and the options.
 nlohmann::json reference_identity(const scene::Scene& s, const ReferenceOptions& o);
 std::string reference_key(const scene::Scene& s, const ReferenceOptions& o);

@@ -383,6 +383,8 @@ std::string results_csv(const std::vector<json>& rows) {
     if (r.contains("temporal"))
       for (const auto& [k, v] : r["temporal"].items()) put(i, "temporal_" + k, v);
     put(i, "nonfinite", r.value("nonfinite", json()));
+    if (r.contains("discarded"))
+      for (const auto& [k, v] : r["discarded"].items()) put(i, "discarded_" + k, v);
     for (const auto& [k, v] : r["passes"].items()) put(i, "pass_" + k + "_ms", v["ms_per_frame"]);
     for (const auto& [k, v] : r["memory"]["per_category"].items())
       put(i, "mem_" + k + "_mb", v.get<double>() / 1e6);
@@ -635,6 +637,7 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
                   {"frames", fmt::format("{}:{}", first, last)},
                   {"samples", mean_samples(rs)},
                   {"nonfinite", bad},
+                  {"discarded", rs.counters.discarded_json()},
                   {"device", ctx.device_name()}};
       row["time"] = {{"gpu_ms_per_frame", rs.gpu_ms / frames},
                      {"trace_ms_per_frame",
@@ -686,6 +689,13 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
       render::write_text(csv, results_csv(rows));
       if (bad > 0 && spec.require_finite) {
         log(fmt::format("run {} {}: {} NaN or Inf values", run.index, run.settings.dump(), bad));
+        code = 4;
+      }
+      // A sample the estimator dropped (a non-finite radiance) or cut (step cap, majorant) is what a
+      // finite image can hide: require_finite asks for none.
+      if (rs.counters.discarded() > 0 && spec.require_finite) {
+        log(fmt::format("run {} {}: samples discarded {}", run.index, run.settings.dump(),
+                        rs.counters.discarded_json().dump()));
         code = 4;
       }
     } catch (const render::Error& e) {

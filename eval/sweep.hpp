@@ -32,7 +32,7 @@ struct SweepSpec {
   std::string frames;                 // "A:B"; "": the scene's render.frames
   std::optional<ReferenceOptions> reference;  // none: no error metrics
   std::string layer;                 // the layer compared, the same in test and reference ("": R, G, B)
-  bool require_finite = true;        // a run with NaN or Inf makes the sweep exit with 4
+  bool require_finite = true;        // a run with NaN, Inf or discarded samples makes the sweep exit with 4
   std::string save_images = "last";  // last | all | none: EXR frames kept per run (for the report)
   nlohmann::json canonical;          // everything above as JSON: what identifies the sweep
 };

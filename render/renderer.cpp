@@ -31,6 +31,78 @@ uint32_t layer_of(uint32_t offset) {
 
 }  // namespace
 
+FrameCounters frame_counters(const std::vector<uint32_t>& words) {
+  auto at = [&](uint32_t c) { return uint64_t(words.at(2 * c)) | (uint64_t(words.at(2 * c + 1)) << 32); };
+  FrameCounters f;
+  f.non_finite = at(glsl::COUNT_NON_FINITE);
+  f.step_cap = at(glsl::COUNT_STEP_CAP);
+  f.majorant = at(glsl::COUNT_MAJORANT);
+  f.clamped_squares = at(glsl::COUNT_CLAMPED_SQUARES);
+  f.lookups = at(glsl::COUNT_LOOKUPS);
+  f.delta_real = at(glsl::COUNT_DELTA_REAL);
+  f.delta_null = at(glsl::COUNT_DELTA_NULL);
+  f.distance_samples = at(glsl::COUNT_DISTANCE);
+  f.guided = at(glsl::COUNT_GUIDED);
+  return f;
+}
+
+double FrameCounters::null_share() const {
+  const uint64_t all = delta_real + delta_null;
+  return all ? double(delta_null) / double(all) : 0.0;
+}
+
+FrameCounters& FrameCounters::operator+=(const FrameCounters& o) {
+  non_finite += o.non_finite;
+  step_cap += o.step_cap;
+  majorant += o.majorant;
+  clamped_squares += o.clamped_squares;
+  lookups += o.lookups;
+  delta_real += o.delta_real;
+  delta_null += o.delta_null;
+  distance_samples += o.distance_samples;
+  guided += o.guided;
+  return *this;
+}
+
+nlohmann::json FrameCounters::discarded_json() const {
+  return {{"non_finite", non_finite}, {"step_cap", step_cap}, {"majorant", majorant}};
+}
+
+nlohmann::json FrameCounters::tracking_json() const {
+  return {{"lookups", lookups},
+          {"delta_real", delta_real},
+          {"delta_null", delta_null},
+          {"null_share", null_share()},
+          {"distance_samples", distance_samples},
+          {"guided", guided}};
+}
+
+std::vector<std::string> counter_notes(const FrameCounters& c) {
+  std::vector<std::string> n;
+  if (c.non_finite > 0)
+    n.push_back(fmt::format(
+        "{} samples had a non-finite radiance and were dropped: their pixels average their other samples "
+        "(biased where such samples are not rare accidents; stats.json discarded.non_finite per frame)",
+        c.non_finite));
+  if (c.step_cap > 0)
+    n.push_back(fmt::format(
+        "{} samples had a tracking query stopped at the step cap ({} steps; its transmittance taken as 0, "
+        "its walk ended): the image is biased dark there; a finer render.majorant_resolution tightens the "
+        "majorant",
+        c.step_cap, volume::kMaxTrackingSteps));
+  if (c.majorant > 0)
+    n.push_back(fmt::format(
+        "{} samples met an extinction above the majorant (clamped as pbrt-v4 does): the image is biased "
+        "there; please report the scene",
+        c.majorant));
+  if (c.clamped_squares > 0)
+    n.push_back(fmt::format(
+        "{} samples had a squared radiance above {:g}, clamped there so that sums of squares stay "
+        "finite; variance and surface_demod_m2 are lower bounds in those pixels",
+        c.clamped_squares, double(glsl::SQUARE_MAX)));
+  return n;
+}
+
 double median(std::vector<double> v) {
   if (v.empty()) return 0;
   std::sort(v.begin(), v.end());
@@ -124,8 +196,9 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   std::vector<lights::Emitter> emitters;
   for (const auto& e : surfaces_.geometry().emitters) emitters.push_back({e.v0, e.v1, e.v2, e.radiance});
   lights_.update(s.lights, emitters);
-  // Guiding learns where light scatters towards the camera: it needs a medium and a light.
-  const bool guided = s.guiding.enabled && media_.any() && lights_.any();
+  // Guiding learns where light scatters towards the camera: it needs a medium and a light, and the default
+  // estimator's distance sampling on camera rays (volpath has none).
+  const bool guided = s.guiding.enabled && media_.any() && lights_.any() && s.render.estimator == "default";
   guide_.update(s.guiding, uint32_t(s.render.width), uint32_t(s.render.height), guided, fresh);
 
   // The scene block: the camera and settings here, each part's share from the part.
@@ -150,7 +223,7 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   if (!scene_buf_.valid()) scene_buf_ = gpu::Buffer(ctx_, "scene", "scene data", sizeof(g), "GpuScene");
   if (!counters_.valid())
     counters_ =
-        gpu::Buffer(ctx_, "frame counters", "per-frame temporaries", glsl::COUNTERS * 4, "u32 COUNT_*");
+        gpu::Buffer(ctx_, "frame counters", "per-frame temporaries", glsl::COUNTERS * 8, "u64 COUNT_*");
   scene_buf_.upload(&g, sizeof(g));
   block_ = g;
   block_dirty_ = false;
@@ -178,15 +251,18 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   accum_.fill_zero();
   clear_accum_ = false;
   samples_ = 0;
+  folded_.clear();
+  folded_samples_ = 0;
 
   // The kernels of exactly this scene's features.
   gpu::KernelDecl t("volume/trace.comp");
   t.buffer("scene", sizeof(g));
   accum_.declare(t);
-  t.buffer("counters", glsl::COUNTERS * 4);
+  t.buffer("counters", glsl::COUNTERS * 8);
   media_.declare(t);
   lights_.declare(t);
   if (s.render.max_depth > 1) t.define("HAZE_MULTI");
+  if (s.render.estimator == "volpath") t.define("HAZE_VOLPATH");
   surfaces_.declare(t);
   guide_.declare(t);
   trace_ = kernel(std::move(t.push(4)));
@@ -247,6 +323,8 @@ void Renderer::set_camera(const scene::Camera& camera, const scene::Camera& prev
   block_dirty_ = true;
   clear_accum_ = true;
   samples_ = 0;
+  folded_.clear();
+  folded_samples_ = 0;
 }
 
 void Renderer::restart(const scene::Scene& s, uint32_t frame, const scene::Scene* prev) {
@@ -386,6 +464,7 @@ void Renderer::add_samples(int n, const std::function<void(int, int)>& progress)
     record_samples(cmd, &ring_->timer(), 1);
     if (progress) ring_->on_complete([progress, i, n] { progress(i + 1, n); });
     ring_->submit();
+    if (samples_ - folded_samples_ >= kFoldSamples) fold();
   }
 }
 
@@ -551,16 +630,26 @@ Image Renderer::read_image(const Readback& rb, int samples, int width, int heigh
     img.volume_motion.resize(pixels);
     rb.volume_motion.read_mapped(img.volume_motion.data(), pixels * 16);
   }
-  std::vector<uint32_t> counts(glsl::COUNTERS);
-  rb.counters.read_mapped(counts.data(), counts.size() * 4);
-  img.non_finite = counts[glsl::COUNT_NON_FINITE];
-  img.clamped_squares = counts[glsl::COUNT_CLAMPED_SQUARES];
+  std::vector<uint32_t> words(2 * glsl::COUNTERS);
+  rb.counters.read_mapped(words.data(), words.size() * 4);
+  img.counters = frame_counters(words);
   return img;
 }
 
 void Renderer::resolve_async(std::function<void(Image)> done) {
+  // After a fold the resolve reads the double sums, rounded to float once.
+  const bool folded = folded_samples_ > 0;
+  if (folded) {
+    fold();
+    accum_.upload(std::vector<float>(folded_.begin(), folded_.end()));
+  }
   VkCommandBuffer cmd = ring_->begin();
   record_resolve(cmd, &ring_->timer());
+  if (folded) {
+    // The device held the folded sums for this resolve only: the next samples add to zero again.
+    gpu::compute_barrier(cmd);
+    accum_.fill_zero(cmd);
+  }
   std::shared_ptr<Readback> rb = take_readback();
   record_readback(cmd, *rb);
   // The scene may change before the frame is finished: its size is taken now.
@@ -590,9 +679,21 @@ Image Renderer::resolve() {
   return img;
 }
 
-std::vector<float> Renderer::accum() const {
+std::vector<double> Renderer::accum() const {
   ring_->finish();
-  return accum_.download();
+  const std::vector<float> device = accum_.download();
+  std::vector<double> sums(device.begin(), device.end());
+  for (size_t i = 0; i < folded_.size(); ++i) sums[i] += folded_[i];
+  return sums;
+}
+
+void Renderer::fold() {
+  ring_->finish();
+  const std::vector<float> device = accum_.download();
+  folded_.resize(device.size(), 0.0);
+  for (size_t i = 0; i < device.size(); ++i) folded_[i] += device[i];
+  folded_samples_ = samples_;
+  accum_.fill_zero();
 }
 
 std::vector<std::string> Renderer::notes() const {

@@ -33,6 +33,31 @@ extern const std::vector<std::string> kResolvedLayers;      // out_l ... out_dem
 extern const std::vector<std::string> kGBufferLayers;       // g_depth, g_normal, g_albedo
 extern const std::vector<std::string> kPrevGBufferLayers;   // prev_g_depth, prev_g_normal, prev_g_albedo
 
+// What a frame's samples cut and what its trackers did: the COUNT_* counters of
+// shaders/volume/gpu_scene.glsl, summed over the frame's samples.
+struct FrameCounters {
+  // Discarded: samples dropped for a non-finite radiance (not counted as samples of their pixel), samples
+  // in which a tracking query stopped at the step cap, samples that met sigma_t above the majorant.
+  uint64_t non_finite = 0, step_cap = 0, majorant = 0;
+  uint64_t clamped_squares = 0;               // samples with a square capped at SQUARE_MAX
+  uint64_t lookups = 0;                       // density lookups of the trackers
+  uint64_t delta_real = 0, delta_null = 0;    // delta tracking's real and null collisions
+  uint64_t distance_samples = 0, guided = 0;  // distance samples on camera rays; drawn from the guide
+
+  uint64_t discarded() const { return non_finite + step_cap + majorant; }
+  // Share of delta tracking's tentative collisions that were null (0 without any).
+  double null_share() const;
+  FrameCounters& operator+=(const FrameCounters& o);
+  // {"non_finite", "step_cap", "majorant"}: stats.json's `discarded`.
+  nlohmann::json discarded_json() const;
+  // {"lookups", "delta_real", "delta_null", "null_share", "distance_samples", "guided"}: `tracking`.
+  nlohmann::json tracking_json() const;
+};
+// The counters from the counters buffer's words (two per counter: low, high).
+FrameCounters frame_counters(const std::vector<uint32_t>& words);
+// `note:` lines for what a run's samples discarded or clamped (none when nothing was).
+std::vector<std::string> counter_notes(const FrameCounters& c);
+
 // Resolved image: OUT_STRIDE floats per pixel (layout in shaders/volume/gpu_scene.glsl) plus the preview.
 struct Image {
   int width = 0, height = 0;
@@ -44,8 +69,7 @@ struct Image {
   std::optional<denoise::SvgfResult> surface_denoised;  // when the surface instance ran
   std::optional<denoise::SvgfResult> volume_denoised;   // when the volume instance ran
   std::vector<glm::vec4> volume_motion;  // when computed: guiding::VolumeMotion::output() per pixel
-  uint64_t non_finite = 0;               // samples dropped for a non-finite radiance (COUNT_NON_FINITE)
-  uint64_t clamped_squares = 0;          // samples with a square capped at SQUARE_MAX
+  FrameCounters counters;                // what the frame's samples discarded, clamped and tracked
   float at(int x, int y, uint32_t channel) const {
     return data[(size_t(y) * width + x) * glsl::OUT_STRIDE + channel];
   }
@@ -117,8 +141,15 @@ class Renderer {
   void finish();
   // Waits for them and drops what waits for them (a failed run; also on destruction).
   void discard();
-  // Raw per-pixel sums (ACC_STRIDE floats per pixel) for tests.
-  std::vector<float> accum() const;
+  // Raw per-pixel sums (ACC_STRIDE per pixel): the device's float sums of the samples since the last fold
+  // plus the folded double sums. Waits for the samples in flight.
+  std::vector<double> accum() const;
+  // The device sums at most this many samples in float before they are folded into double sums on the
+  // host, so that a reference of 2^24 samples still converges (a float sum stops growing once a sample is
+  // below half its ulp). Renders of fewer samples never fold; add_samples folds (a wait for the device), the
+  // samples a caller records itself (record_samples) do not.
+  static constexpr int kFoldSamples = 1024;
+  int folded_samples() const { return folded_samples_; }
 
   // The same passes recorded into a caller's frame (a viewer's command buffer, timed with its timer): the
   // first samples of a frame start it (G-buffer, volume motion, the guide carried over); `record_resolve`
@@ -190,6 +221,11 @@ class Renderer {
   double pipeline_ms_ = 0;
   gpu::ShaderCacheStats shaders_at_start_;  // the context's compiler counters when this run began
   int samples_ = 0;
+  std::vector<double> folded_;  // double sums of the folded samples (ACC_STRIDE per pixel), empty before
+  int folded_samples_ = 0;
+
+  // Adds the device's sums to folded_ and zeroes them.
+  void fold();
 
   // set_scene, or with `fresh` the start of an independent run (the guide's states are emptied).
   void load(const scene::Scene& s, uint32_t frame, const scene::Scene* prev, bool fresh);

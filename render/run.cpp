@@ -85,10 +85,10 @@ RunSummary render_frames(gpu::Context& ctx, const scene::Scene& s, int first, in
                              {"gpu_ms", gpu_ms},
                              {"trace_gpu_ms", trace_ms},
                              {"samples", img.samples},
-                             {"non_finite", img.non_finite},
-                             {"clamped_squares", img.clamped_squares}});
-    out.non_finite += img.non_finite;
-    out.clamped_squares += img.clamped_squares;
+                             {"discarded", img.counters.discarded_json()},
+                             {"clamped_squares", img.counters.clamped_squares},
+                             {"tracking", img.counters.tracking_json()}});
+    out.counters += img.counters;
   };
   // A frame that fails leaves earlier frames' images undelivered: they are dropped with the run (their
   // callbacks refer to this function's locals).
@@ -127,18 +127,10 @@ RunSummary render_frames(gpu::Context& ctx, const scene::Scene& s, int first, in
     throw;
   }
   // What the estimator dropped or clamped, said once for the run (per frame in per_frame).
-  auto say = [&](const std::string& n) {
+  for (const std::string& n : counter_notes(out.counters)) {
     if (loop.on_note) loop.on_note(n);
     out.notes.push_back(n);
-  };
-  if (out.non_finite > 0)
-    say(fmt::format("{} samples had a non-finite radiance and were dropped (each counted as a zero sample)",
-                    out.non_finite));
-  if (out.clamped_squares > 0)
-    say(fmt::format(
-        "{} samples had a squared radiance above {:g}, clamped there so that sums of squares stay "
-        "finite; variance and surface_demod_m2 are lower bounds in those pixels",
-        out.clamped_squares, double(glsl::SQUARE_MAX)));
+  }
   out.stats = r->stats();
   return out;
 }

@@ -22,9 +22,9 @@ struct RunSummary {
   nlohmann::json per_frame = nlohmann::json::array();  // {frame, setup_s, render_s, gpu_ms, trace_gpu_ms}
   std::vector<std::string> notes;
   double setup_s = 0, render_s = 0;
-  double gpu_ms = 0;                             // every pass's GPU time over all frames
-  uint64_t non_finite = 0, clamped_squares = 0;  // Image::non_finite and clamped_squares over all frames
-  nlohmann::json stats;  // Renderer::stats() after the last frame: passes, memory, features
+  double gpu_ms = 0;       // every pass's GPU time over all frames
+  FrameCounters counters;  // Image::counters summed over all frames
+  nlohmann::json stats;    // Renderer::stats() after the last frame: passes, memory, features
 };
 
 // Renders frames [first, last] of `s` (each through scene_at_frame, with the previous frame for motion).

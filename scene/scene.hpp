@@ -148,6 +148,9 @@ struct RenderSettings {
   bool pixel_jitter = true;              // random position inside the pixel (off: pixel centres)
   float equiangular_probability = 0.5f;  // share of equi-angular sampling when point/spot lights exist
   float rr_threshold = 0.1f;             // Russian roulette on ratio-tracked transmittance below this
+  // "default": haze's estimator (docs/rendering.md); "volpath": pbrt-v4's VolPathIntegrator for grey media,
+  // the baseline of the efficiency benchmark.
+  std::string estimator = "default";
   std::string frames;  // "A:B", both included; "" = the animation's first to last key (0:0 without one)
   float fps = 24.f;    // time base: frame k is at k / fps seconds
 
@@ -363,6 +366,9 @@ void reflect(V& v, RenderSettings& r) {
           "mixture weight of equi-angular distance sampling (scenes with point or spot lights)");
   v.field("rr_threshold", r.rr_threshold, Range{0, 1},
           "Russian roulette on ratio-tracked transmittance below this value (0: off)");
+  v.field("estimator", r.estimator, Choices{"default", "volpath"},
+          "default: haze's estimator; volpath: pbrt-v4's VolPathIntegrator (delta tracking, NEE at every "
+          "collision), the efficiency benchmark's baseline");
   v.field(
       "frames", r.frames,
       "frames to render, \"A:B\" with both included; \"\": the animation's first to last key (0:0 without)");

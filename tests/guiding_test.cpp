@@ -96,7 +96,7 @@ TEST(VirtualPoints, DepthLiesOnTheShaft) {
   render::Renderer r(context(), s);
   r.add_samples(32);
   render::Image img = r.resolve();
-  std::vector<float> acc = r.accum();
+  std::vector<double> acc = r.accum();
   auto dirs = camera_directions(s);
   int checked = 0, fallbacks = 0;
   double offset = 0;

@@ -638,6 +638,9 @@ TEST(Sweep, StabilitySweepStaysFinite) {
   for (const auto& l : rows) {
     json row = json::parse(l);
     EXPECT_EQ(row["nonfinite"], 0) << row["settings"].dump();
+    // Nothing was dropped to stay finite, nor cut by the step cap or a majorant violation.
+    EXPECT_EQ(row["discarded"], json({{"non_finite", 0}, {"step_cap", 0}, {"majorant", 0}}))
+        << row["settings"].dump();
     EXPECT_EQ(row["frames"], "0:1");
   }
 }

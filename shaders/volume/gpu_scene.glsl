@@ -48,16 +48,18 @@ struct GpuScene {
 // 4 * layer + component, and the layer names (render/frame.hpp) are in layer order.
 //
 // Accumulation, sums then sums of squares: acc_l (L, T), acc_l2 (L², T²), acc_vol (volume term, depth),
-// acc_vol2 (its squares), acc_surf, acc_surf2 (surface term), acc_demod, acc_demod2 (the surface term
-// divided by the albedo of the first surface hit, per sample: the surface denoiser's input) and acc_vp, the
-// virtual point sums: VP_WT and VP_W are sum(Y t) and sum(Y) over the distance samples (Y: luminance of
-// each one's volume contribution); VP_G and VP_GN sum the mean of the guide state each sample chose, and
-// count them; acc_emit, the emission of the camera's surface hits (kept out of acc_demod: the denoiser adds
-// it back after remodulation).
+// acc_vol2 (its squares), acc_surf (surface term, and the samples dropped for a non-finite radiance:
+// ACC_DROPPED), acc_surf2 (its squares), acc_demod, acc_demod2 (the surface term divided by the albedo of
+// the first surface hit, per sample: the surface denoiser's input) and acc_vp, the virtual point sums: VP_WT
+// and VP_W are sum(Y t) and sum(Y) over the distance samples (Y: luminance of each one's volume
+// contribution); VP_G and VP_GN sum the mean of the guide state each sample chose, and count them;
+// acc_emit, the emission of the camera's surface hits (kept out of acc_demod: the denoiser adds it back
+// after remodulation).
 const uint ACC_L = 0u, ACC_T = 3u, ACC_L2 = 4u, ACC_T2 = 7u, ACC_VOL = 8u, ACC_DEPTH = 11u;
 const uint ACC_VOL2 = 12u, ACC_SURF = 16u, ACC_SURF2 = 20u, ACC_DEMOD = 24u, ACC_DEMOD2 = 28u;
 const uint ACC_VP_WT = 32u, ACC_VP_W = 33u, ACC_VP_G = 34u, ACC_VP_GN = 35u;
 const uint ACC_EMIT = 36u;
+const uint ACC_DROPPED = 19u;
 const uint ACC_STRIDE = 40u;
 
 // Resolved means: out_l (L, depth), out_vol (volume term, virtual point depth: 0 where none), out_surf
@@ -68,10 +70,16 @@ const uint OUT_VAR = 12u, OUT_DEMOD = 16u, OUT_DEMOD_M2 = 20u;
 const uint OUT_EMIT = 24u;
 const uint OUT_STRIDE = 28u;
 
-// Counters of one frame (the binding "counters", uint each): samples whose radiance was not finite (dropped,
-// counted as zero samples), and samples with a square clamped at SQUARE_MAX so that the sums of squares of
-// 2^24 samples stay finite in float (the second moments of such pixels are then lower bounds).
-const uint COUNT_NON_FINITE = 0u, COUNT_CLAMPED_SQUARES = 1u, COUNTERS = 4u;
+// Counters of one frame (the binding "counters"), each a 64-bit count in two uints (low, high): samples
+// whose radiance was not finite (dropped: not counted as samples of their pixel, ACC_DROPPED), samples with
+// a square clamped at SQUARE_MAX so that the sums of squares of 2^24 samples stay finite in float (the
+// second moments of such pixels are then lower bounds), samples in which a tracking query stopped at the
+// step cap (its transmittance taken as 0, its collision as none: biased), samples in which sigma_t exceeded
+// the majorant at a lookup (biased); then what the trackers did: density lookups, delta tracking's real and
+// null collisions, distance samples on camera rays and how many of them the guide drew.
+const uint COUNT_NON_FINITE = 0u, COUNT_CLAMPED_SQUARES = 1u, COUNT_STEP_CAP = 2u, COUNT_MAJORANT = 3u;
+const uint COUNT_LOOKUPS = 4u, COUNT_DELTA_REAL = 5u, COUNT_DELTA_NULL = 6u, COUNT_DISTANCE = 7u;
+const uint COUNT_GUIDED = 8u, COUNTERS = 9u;
 const float SQUARE_MAX = 2.0e31;  // FLT_MAX / 2^24
 
 #ifndef __cplusplus

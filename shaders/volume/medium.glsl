@@ -53,9 +53,8 @@ float media_exit(vec3 o, vec3 d) {
   return min(t, T_INF);
 }
 
-// sigma_t at x, and one component chosen with probability sigma_t,i / sigma_t using the single uniform u
-// (streaming selection: u is rescaled after each decision).
-MediumSample sample_medium(vec3 x, float u) {
+// The homogeneous haze at x (nothing outside its box): the whole medium where no grid reaches.
+MediumSample haze_at(vec3 x) {
   MediumSample ms;
   ms.sigma_t = 0.0f;
   ms.sigma_control = 0.0f;
@@ -70,6 +69,13 @@ MediumSample sample_medium(vec3 x, float u) {
     ms.g = scene.haze_albedo_g.w;
   }
 #endif
+  return ms;
+}
+
+// sigma_t at x, and one component chosen with probability sigma_t,i / sigma_t using the single uniform u
+// (streaming selection: u is rescaled after each decision).
+MediumSample sample_medium(vec3 x, float u) {
+  MediumSample ms = haze_at(x);
 #if HAZE_HETERO
   int chosen = -1;
   vec3 chosen_p = vec3(0.0f);
@@ -209,14 +215,16 @@ bool maj_next(INOUT(MajorantIter) it, OUT(float) sigma_het, OUT(float) sigma_haz
 
 // Optical depth of the full majorant from t0 up to where it reaches tau_stop (or t1).
 struct MajWalk {
-  float tau;    // accumulated majorant optical depth
-  float t;      // where the walk stopped
-  float sigma;  // majorant at t
+  float tau;      // accumulated majorant optical depth
+  float tau_het;  // its heterogeneous part (the majorant grid's)
+  float t;        // where the walk stopped
+  float sigma;    // majorant at t
 };
 
 MajWalk maj_walk(vec3 o, vec3 d, float t0, float t1, float tau_stop) {
   MajWalk w;
   w.tau = 0.0f;
+  w.tau_het = 0.0f;
   w.t = t0;
   w.sigma = 0.0f;
   MajorantIter it = maj_init(o, d, t0, t1);
@@ -228,10 +236,12 @@ MajWalk maj_walk(vec3 o, vec3 d, float t0, float t1, float tau_stop) {
     w.sigma = s;
     if (w.tau + dtau >= tau_stop && s > 0.0f) {
       w.t = ta + (tau_stop - w.tau) / s;
+      w.tau_het += s_het * (w.t - ta);
       w.tau = tau_stop;
       return w;
     }
     w.tau += dtau;
+    w.tau_het += s_het * (tb - ta);
     w.t = tb;
   }
   return w;
@@ -240,16 +250,34 @@ MajWalk maj_walk(vec3 o, vec3 d, float t0, float t1, float tau_stop) {
 const int TRACK_RATIO = 0;  // transmittance estimate T over [t0, t1]
 const int TRACK_DELTA = 1;  // first real collision in [t0, t1]
 
+// Whether ratio tracking takes the haze in closed form (the default estimator) or tracks it (volpath).
+#if HAZE_VOLPATH
+const bool TRACK_CONTROL = false;  // plain ratio tracking: every medium is tracked, the haze included
+#else
+const bool TRACK_CONTROL = true;  // the haze's transmittance in closed form (residual ratio tracking)
+#endif
+
 struct TrackResult {
   float T;
   bool hit;
   float t;
   MediumSample ms;  // at the collision (DELTA) or at t1 (RATIO with eval_end)
+  uint lookups;     // density evaluations
+  uint nulls;       // DELTA: tentative collisions that were null
+  bool capped;      // the step cap stopped the query: T = 0 (RATIO) or no collision (DELTA), not an estimate
+  bool violated;    // sigma_t above the majorant at a lookup: the estimate is biased there
 };
 
-// Ratio tracking uses the haze as a control: its transmittance is taken in closed form and only the
-// heterogeneous residual is tracked (Novak et al. 2014). Each loop iteration does at most one lookup.
-TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, INOUT(uint) rng) {
+// sigma above the majorant sigma_maj by more than float rounding of the trilinear weights.
+HAZE_INLINE bool above_majorant(float sigma, float sigma_maj) {
+  return sigma > sigma_maj * 1.00001f;
+}
+
+// Ratio tracking (default estimator) uses the haze as a control: its transmittance is taken in closed form
+// and only the heterogeneous residual is tracked (Novak et al. 2014). Each loop iteration does at most one
+// lookup. rr, rr_survive: Russian roulette on T below rr, surviving with rr_survive.
+TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, float rr, float rr_survive,
+                  INOUT(uint) rng) {
   TrackResult r;
   r.T = 1.0f;
   r.hit = false;
@@ -259,7 +287,11 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, I
   r.ms.albedo = vec3(0.0f);
   r.ms.g = 0.0f;
   r.ms.emit = vec3(0.0f);
-  float rr = scene.settings.y;
+  r.lookups = 0u;
+  r.nulls = 0u;
+  r.capped = false;
+  r.violated = false;
+  bool control = TRACK_CONTROL && mode == TRACK_RATIO;
   MajorantIter it = maj_init(o, d, t0, t1);
   float s_het = 0.0f, s_haze = 0.0f, ta = t0, tb = t0;
   float sigma_maj = 0.0f;
@@ -275,8 +307,8 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, I
       if (!(t < tb)) {
         if (!maj_next(it, s_het, s_haze, ta, tb)) break;
         t = ta;
-        sigma_maj = mode == TRACK_RATIO ? s_het : s_het + s_haze;
-        if (mode == TRACK_RATIO) tau_control += s_haze * (tb - ta);
+        sigma_maj = control ? s_het : s_het + s_haze;
+        if (control) tau_control += s_haze * (tb - ta);
       }
       float dt = tb - t;
       if (sigma_maj * dt > tau_left) {
@@ -291,34 +323,42 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, I
     bool at_end = !found;
     vec3 x = o + d * (at_end ? t1 : t);
     MediumSample ms = sample_medium(x, rng_next(rng));
+    r.lookups += 1u;
+    // The part of sigma_t this query's majorant bounds (the control is exact).
+    float sigma = control ? ms.sigma_t - ms.sigma_control : ms.sigma_t;
+    r.violated = r.violated || above_majorant(sigma, sigma_maj);
     if (at_end) {
       r.ms = ms;
       break;
     }
     if (mode == TRACK_RATIO) {
-      r.T *= clamp(1.0f - (ms.sigma_t - ms.sigma_control) / sigma_maj, 0.0f, 1.0f);
+      // pbrt-v4 clamps the null-collision weight at 0 too; a violation is counted above.
+      r.T *= clamp(1.0f - sigma / sigma_maj, 0.0f, 1.0f);
       if (r.T < rr) {
         // Russian roulette keeps the estimate unbiased while bounding the walk.
-        if (rng_next(rng) < 0.5f) {
+        if (rng_next(rng) >= rr_survive) {
           r.T = 0.0f;
           break;
         }
-        r.T *= 2.0f;
+        r.T /= rr_survive;
       }
     } else if (rng_next(rng) * sigma_maj < ms.sigma_t) {
       r.hit = true;
       r.t = t;
       r.ms = ms;
       break;
+    } else {
+      r.nulls += 1u;
     }
     tau_left = -log_one_minus(rng_next(rng));
-    // Bounded work per query: a pathological majorant cannot hang the dispatch.
+    // Bounded work per query: a pathological majorant cannot hang the dispatch. What was cut is counted.
     if (++steps >= scene.maj_res.w) {
       r.T = 0.0f;
+      r.capped = true;
       break;
     }
   }
-  if (mode == TRACK_RATIO) r.T *= exp(-tau_control);
+  if (control) r.T *= exp(-tau_control);
   return r;
 }
 

@@ -40,11 +40,13 @@ pc;
 void main() {
   uint p = invocation_index();
   if (p >= pc.pixels) return;
-  float n = float(max(pc.samples, 1u));
   vec4 l = acc_l[p], l2 = acc_l2[p], vol = acc_vol[p], surf = acc_surf[p], vp = acc_vp[p];
+  // Samples dropped for a non-finite radiance are not samples of the pixel (counted in stats.json).
+  float kept = float(pc.samples) - surf.w;
+  float n = max(kept, 1.0f);
   vec3 mean = l.rgb / n;
   vec3 m2 = l2.rgb / n;
-  vec3 var = pc.samples > 1u ? max(m2 - mean * mean, vec3(0.0f)) * (n / (n - 1.0f)) : vec3(0.0f);
+  vec3 var = kept > 1.0f ? max(m2 - mean * mean, vec3(0.0f)) * (n / (n - 1.0f)) : vec3(0.0f);
 
   // Virtual point depth: where the volume contribution concentrates, else the guide's mean, else the depth.
   float depth = vol.w / n;

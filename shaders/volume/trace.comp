@@ -2,6 +2,9 @@
 // One camera sample per pixel per dispatch: the surface term T(0,t_s) L_bg and the volume term
 // (N distance samples on [0, t_s] from the mixture q(t), NEE with ratio-tracked shadow rays, and a
 // delta-tracked random walk for multiple scattering). Results are added to per-pixel sums and squares.
+// With HAZE_VOLPATH (render.estimator "volpath") the same kernel is pbrt-v4's VolPathIntegrator for grey
+// media instead, the baseline of haze bench's efficiency figures: the camera ray is the first delta-tracked
+// walk ray, real collisions absorb or scatter, NEE at every vertex, plain ratio tracking with pbrt's roulette.
 //
 // The estimator runs as a small state machine whose loop issues one tracking query per iteration, so the
 // tracker (and its single density-lookup call site) is inlined once.
@@ -32,8 +35,15 @@ PIXEL_LAYER(acc_emit);  // scenes with emissive surfaces only
 #endif
 PIXEL_LAYER(acc_vp);
 layout(std430, binding = BINDING_counters) buffer Counters {
-  uint counters[];  // COUNT_*
+  uint counters[];  // COUNT_*, 64-bit each: low, high
 };
+
+// Adds v to 64-bit counter c (carry into the high word when the low one wraps).
+void counter_add(uint c, uint v) {
+  if (v == 0u) return;
+  uint old = atomicAdd(counters[2u * c], v);
+  if (old + v < old) atomicAdd(counters[2u * c + 1u], 1u);
+}
 
 #include "lights/lights.glsl"
 #include "volume/medium.glsl"
@@ -57,6 +67,17 @@ const int ST_SURFACE = 0;  // ratio tracking T(0, t_s) for the surface term
 const int ST_CAMERA = 1;   // ratio tracking T(0, t_j) to a sampled distance, with the medium at t_j
 const int ST_SHADOW = 2;   // ratio tracking towards a light
 const int ST_WALK = 3;     // delta tracking to the next scattering vertex
+const int ST_START = 4;    // nothing tracked yet: the first volume sample starts
+
+// Russian roulette of the walk on the path throughput relative to its value at the first vertex (so that
+// it does not depend on the camera sample's 1/q or N): below PATH_RR it survives with probability
+// (relative throughput) / PATH_RR.
+const float PATH_RR = 0.25f;
+const float TAU_DELTA = 0.1f;
+#if HAZE_VOLPATH
+// pbrt-v4's roulette of ratio-tracked transmittance (VolPathIntegrator::SampleLd).
+const float RATIO_RR = 0.05f, RATIO_RR_SURVIVE = 0.25f;
+#endif
 
 #if HAZE_GUIDING
 // A random state slot at a grid vertex next to grid position g (stochastic bilinear choice of the vertex).
@@ -103,20 +124,41 @@ void main() {
 #endif
   uint N = scene.size.z;
   uint max_depth = scene.size.w;
+#if HAZE_VOLPATH
+  float rr_T = RATIO_RR, rr_T_survive = RATIO_RR_SURVIVE;
+#else
+  float rr_T = scene.settings.y, rr_T_survive = 0.25f;
+#endif
 
   vec3 L_surf = vec3(0.0f), L_vol = vec3(0.0f);
   vec3 albedo0 = vec3(1.0f);  // albedo of the camera's surface hit, for demodulation
   vec3 E_surf = vec3(0.0f);   // the camera hit's emission (in L_surf, kept out of the demodulated term)
   float T_surf = 1.0f;
+  // What this sample's tracking did and what it cut, added to the frame's counters once at the end.
+  uint n_lookups = 0u, n_real = 0u, n_null = 0u, n_distance = 0u, n_guided = 0u;
+  bool step_capped = false, violated = false;
 
-  // Distance sampling on the camera ray: q(t) = (1 - P) [p_base q_base(t) + p_ea q_ea(t)] + P q_guide(t).
-  float tau_total = maj_walk(cam_o, cam_d, 0.0f, t_s, T_INF).tau;
-  float p_base = tau_total > 0.0f ? 1.0f : 0.0f;
+#if !HAZE_VOLPATH
+  // Distance sampling on the camera ray: q(t) = (1 - P) [p_base q_base(t) + p_ea q_ea(t)] + P q_guide(t),
+  // or delta tracking where no equi-angular share needs the sample's pdf and the ray meets a heterogeneous
+  // majorant optical depth of TAU_DELTA: its real collision has weight 1, where a forced sample's weight
+  // T sigma_t / q grows with the majorant's looseness. Such rays are not guided either (P = 0): on the
+  // bench's VDB shaft a delta-tracked sample had half the error of a guided one, at a fifth of the time.
+  // The majorant walk stops at TAU_DELTA (no pass over the rest).
   float p_ea = 0.0f;
 #if HAZE_LOCAL
   uint K = scene.counts.z;
+  if (K > 0u && t_s > 0.0f) p_ea = scene.settings.x;
+#endif
+  bool may_delta = p_ea == 0.0f;
+  MajWalk cam_walk = maj_walk(cam_o, cam_d, 0.0f, t_s, may_delta ? TAU_DELTA : T_INF);
+  bool delta_cam = may_delta && cam_walk.tau >= TAU_DELTA && cam_walk.tau_het >= 0.5f * TAU_DELTA;
+  if (may_delta && !delta_cam && cam_walk.tau >= TAU_DELTA) cam_walk = maj_walk(cam_o, cam_d, 0.0f, t_s, T_INF);
+  float tau_total = cam_walk.tau;  // unused by delta-tracked rays
+  float p_base = tau_total > 0.0f ? 1.0f : 0.0f;
+#if HAZE_LOCAL
   if (K > 0u && t_s > 0.0f) {
-    p_ea = tau_total > 0.0f ? scene.settings.x : 1.0f;
+    p_ea = tau_total > 0.0f ? p_ea : 1.0f;
     p_base = 1.0f - p_ea;
   }
 #endif
@@ -124,12 +166,19 @@ void main() {
   // The guide spreads its Gaussians over [0, t_g]: the ray up to t_s, but no further than a majorant optical
   // depth of GUIDE_MAX_TAU (light from beyond is negligible; q_base still covers it).
   float t_g = tau_total > GUIDE_MAX_TAU ? maj_walk(cam_o, cam_d, 0.0f, t_s, GUIDE_MAX_TAU).t : t_s;
-  float P_guide = t_g > 0.0f && t_g < 1e18f ? scene.guide.x : 0.0f;
+  float P_guide = t_g > 0.0f && t_g < 1e18f && !delta_cam ? scene.guide.x : 0.0f;
   vec2 guide_pos = (vec2(pix) + jitter) / scene.guide_learn.x;
   vec4 guide_chosen = vec4(0.0f);  // the state the current sample learns into
   float guide_mean_w = 0.0f;       // mean candidate weight, the bar for writing a state back
 #endif
-  float t_j = 0.0f;  // distance of the current volume sample
+  // The first sample's delta track also estimates T(0, t_s) (1 when it reaches t_s): the surface term
+  // needs no pass of its own.
+  bool surface_from_delta = delta_cam;
+  // A ray that meets no heterogeneous majorant crosses the haze alone: its transmittances are closed forms
+  // and the medium at a distance sample is the haze, so its camera queries need no tracking.
+  bool haze_only = cam_walk.tau_het == 0.0f;
+#endif
+  float t_j = 0.0f;  // distance of the current volume sample (volpath: of the camera ray's first vertex)
   vec3 L_vol_start = vec3(0.0f);
   // Virtual point sums (ACC_VP_*).
   float vp_wt = 0.0f, vp_w = 0.0f, vp_g = 0.0f, vp_gn = 0.0f;
@@ -140,12 +189,12 @@ void main() {
   float q_t0 = 0.0f, q_t1 = t_s;
   int q_mode = TRACK_RATIO;
   bool q_eval = false;
-  uint j = 0u;              // volume sample index
   uint depth = 0u;          // scattering events so far (volume or surface)
   bool to_surface = false;  // the path belongs to the surface term (else to the volume term)
   vec3 x = cam_o;           // current vertex
   vec3 d = cam_d;           // direction the path travelled to reach x
   vec3 beta = vec3(0.0f);
+  float beta_start = 0.0f;    // max component of beta at the path's first vertex (the roulette's yardstick)
   vec3 pending = vec3(0.0f);  // NEE contribution waiting for its shadow-ray transmittance
   float q_j = 1.0f;           // q(t_j) of the current distance sample
   float g = 0.0f;             // phase anisotropy at a volume vertex
@@ -157,188 +206,66 @@ void main() {
 #if HAZE_SURFACES
   BvhHit walk_h;
 #endif
-
-  for (;;) {
-    TrackResult r = track(q_o, q_d, q_t0, q_t1, q_mode, q_eval, rng);
-    bool next_sample = false;  // start the next volume sample
-    bool do_nee = false;       // a scattering vertex is ready at x
-
-    if (state == ST_SURFACE) {
-      T_surf = r.T;
-      if (cam_hit) {
+#if HAZE_VOLPATH
+  // One path per camera sample: the camera ray is the first walk ray, with throughput 1.
+  uint passes = 1u;
+#else
+  // Pass 0 is the surface term (T(0, t_s) by ratio tracking, then its NEE and walk); passes 1..N are the
+  // volume samples. Each pass is one path: the inner loop runs its tracking queries, one per iteration, and
+  // the distance sampling stays outside it.
+  uint passes = N + 1u;
+#endif
+  TrackResult known;  // a query's result in closed form
+  known.T = 1.0f;
+  known.hit = false;
+  known.t = 0.0f;
+  known.ms = haze_at(cam_o);
+  known.lookups = 0u;
+  known.nulls = 0u;
+  known.capped = false;
+  known.violated = false;
+  bool q_known = false;
+  for (uint pass = 0u; pass < passes; ++pass) {
+    to_surface = false;
+    d = cam_d;
+    q_o = cam_o;
+    q_d = cam_d;
+    q_t0 = 0.0f;
+#if HAZE_VOLPATH
+    state = ST_WALK;
+    q_t1 = t_s;
+    q_mode = TRACK_DELTA;
+    q_eval = false;
+    beta = vec3(1.0f);
+    beta_start = 1.0f;
+    T_surf = 0.0f;  // 1 when the camera ray reaches t_s: delta tracking's estimate of T(0, t_s)
+    walk_hit = cam_hit;
 #if HAZE_SURFACES
-        GpuInstance inst = instances[cam_h.instance];
-        L_surf = r.T * inst.emission.rgb;
-#ifdef BINDING_acc_emit
-        E_surf = L_surf;  // else the scene has no emissive surface and E_surf stays 0 (folded away)
+    walk_h = cam_h;
 #endif
-        x = cam_o + cam_d * t_s;
-        n = dot(cam_h.normal, cam_d) < 0.0f ? cam_h.normal : -cam_h.normal;
-        ns = surface_normal(cam_h, n);
-        alb = surface_albedo(cam_h);
-        albedo0 = alb;
-        on_surface = true;
-        to_surface = true;
-        beta = vec3(r.T);
-        depth = 1u;
-        do_nee = max_depth > 0u && r.T > 0.0f;
-        next_sample = !do_nee;
-#endif
-      } else {
-        L_surf = r.T * background(cam_d);
-        next_sample = true;
-      }
-    } else if (state == ST_CAMERA) {
-      // r.T = T(0,t_j) estimate; the camera-ray contribution is T sigma (...) / q(t_j), averaged over N.
-      float w = r.T * r.ms.sigma_t / (q_j * float(N));
-      L_vol += w * r.ms.emit;
-      if (max_depth > 0u && w > 0.0f) {
-        beta = vec3(w) * r.ms.albedo;
-        g = r.ms.g;
-        on_surface = false;
-        depth = 1u;
-        do_nee = true;
-      } else {
-        next_sample = true;
-      }
-    } else if (state == ST_SHADOW) {
-      if (to_surface)
-        L_surf += pending * r.T;
-      else
-        L_vol += pending * r.T;
-#if HAZE_MULTI || HAZE_SURFACES
-      bool below = false;  // a bounce below the geometric surface reflects nothing (no light leaks)
-      if (depth < max_depth) {
-        if (on_surface) {
-          // Lambertian: cosine sampling makes the weight the albedo.
-          d = sample_cosine_hemisphere(ns, vec2(rng_next(rng), rng_next(rng)));
-          beta *= alb;
-          x += n * surface_epsilon(x);
-          below = !(dot(d, n) > 0.0f);
-        } else {
-          d = hg_sample(d, g, vec2(rng_next(rng), rng_next(rng)));
-        }
-      }
-      if (depth < max_depth && !below) {
-        q_o = x;
-        q_d = d;
-        q_t0 = 0.0f;
-        q_t1 = media_exit(x, d);
-        walk_hit = false;
-#if HAZE_SURFACES
-        walk_h = bvh_closest_hit(x, d, 0.0f, T_INF);
-        if (walk_h.triangle != BVH_NONE) {
-          walk_hit = true;
-          q_t1 = walk_h.t;
-        }
-#endif
-        q_mode = TRACK_DELTA;
-        q_eval = false;
-        state = ST_WALK;
-        continue;
-      }
-#endif
-      next_sample = true;
-    } else {  // ST_WALK
-      bool vertex = false;
-      if (r.hit) {
-        x = x + d * r.t;
-        vec3 emitted = beta * r.ms.emit;
-        if (to_surface)
-          L_surf += emitted;
-        else
-          L_vol += emitted;
-        beta *= r.ms.albedo;
-        g = r.ms.g;
-        on_surface = false;
-        vertex = true;
-      }
-#if HAZE_SURFACES
-      else if (walk_hit) {
-        // Emission of surfaces reached by the walk is counted by NEE, which samples emissive triangles.
-        x = x + d * q_t1;
-        n = dot(walk_h.normal, d) < 0.0f ? walk_h.normal : -walk_h.normal;
-        ns = surface_normal(walk_h, n);
-        alb = surface_albedo(walk_h);
-        on_surface = true;
-        vertex = true;
-      }
-#endif
-      if (vertex) {
-        depth += 1u;
-        float m = max(beta.x, max(beta.y, beta.z));
-        if (m < 0.25f) {
-          if (rng_next(rng) * 0.25f >= m) {
-            next_sample = true;
-          } else {
-            beta *= 0.25f / m;
-            do_nee = true;
-          }
-        } else {
-          do_nee = true;
-        }
-      } else {
-        next_sample = true;
-      }
-    }
-
-    if (do_nee) {
-      pending = vec3(0.0f);
-      q_t1 = 0.0f;
-#if HAZE_LIGHTS
-      vec3 o = on_surface ? x + n * surface_epsilon(x) : x;
-      LightSample ls = sample_light(o, vec3(rng_next(rng), rng_next(rng), rng_next(rng)));
-#if HAZE_SURFACES
-      if (on_surface)
-        pending = beta * alb * (INV_PI * surface_cosine(n, ns, ls.wi)) * ls.Li;
-      else
-#endif
-        pending = beta * hg_phase(dot(ls.wi, d), g) * ls.Li;
-      bool visible = any(greaterThan(pending, vec3(0.0f)));
-#if HAZE_SURFACES
-      // Surfaces block shadow rays; an area light's own triangle is excluded by stopping just short of it.
-      if (visible) visible = !bvh_occluded(o, ls.wi, 0.0f, ls.dist < T_INF ? ls.dist * 0.9999f : T_INF);
-#endif
-      if (visible) {
-        q_o = o;
-        q_d = ls.wi;
-        q_t0 = 0.0f;
-        q_t1 = min(ls.dist, media_exit(o, ls.wi));
-      } else {
-        pending = vec3(0.0f);
-      }
-#endif
-      // Without lights (or when blocked) the shadow query is empty and adds nothing.
+#else
+    if (pass == 0u) {
+      // With delta-tracked samples the first sample's track estimates T(0, t_s) too.
+      if (surface_from_delta) continue;
+      state = ST_SURFACE;
+      q_t1 = t_s;
       q_mode = TRACK_RATIO;
       q_eval = false;
-      state = ST_SHADOW;
-      continue;
-    }
-
-    if (next_sample) {
-      to_surface = false;
-      if (j > 0u) {
-        // Volume sample j is complete: its luminance contribution weights its distance.
-        float Y = luminance(L_vol - L_vol_start);
-        if (!(Y >= 0.0f && Y < 1e30f)) Y = 0.0f;
-        vp_wt += Y * t_j;
-        vp_w += Y;
-#if HAZE_GUIDING
-        if (scene.guide_learn.y > 0.5f && P_guide > 0.0f) {
-          // The sample's own estimate f(t)/q(t) of the ray integral (L_vol holds it divided by N).
-          float L = Y * float(N);
-          vec4 s_new = guide_update(guide_chosen, L, t_j, scene.guide_learn.z, scene.guide_learn.w);
-          float p_write = guide_mean_w > 0.0f ? min(1.0f, L / guide_mean_w) : (L > 0.0f ? 1.0f : 0.0f);
-          if (rng_next(rng) < p_write) guide_states[guide_slot(guide_pos, rng)] = s_new;
+      if (haze_only) {
+        known.T = exp(-tau_total);
+        q_known = true;
+        if (!cam_hit) {
+          T_surf = known.T;
+          L_surf = known.T * background(cam_d);
+          continue;
         }
-#endif
       }
-      if (j >= N || (p_base + p_ea) == 0.0f) break;
-      j += 1u;
+    } else {
+      if ((p_base + p_ea) == 0.0f) break;  // no medium along the ray
+      n_distance += 1u;
       L_vol_start = L_vol;
-      // Draw t_j from the mixture and evaluate q(t_j).
-      float t;
-      MajWalk mw;
+      // Draw t_j from the mixture and evaluate q(t_j); or delta-track the ray (weight 1 at its collision).
+      float t = 0.0f;
       float u_pick = rng_next(rng);
       float u_t = rng_next(rng);
       float P = 0.0f;
@@ -364,65 +291,332 @@ void main() {
         if (u_pick < P) {
           t = truncated_gaussian_sample(gm.g[chosen], u_t);
           u_pick = 2.0f;  // neither base nor equi-angular below
+          n_guided += 1u;
         } else {
           u_pick = (u_pick - P) / (1.0f - P);
         }
       }
 #endif
-      if (u_pick > 1.5f) {
-        mw = maj_walk(cam_o, cam_d, 0.0f, t, T_INF);
-      } else if (u_pick < p_base) {
-        mw = maj_walk(cam_o, cam_d, 0.0f, t_s, truncated_exp_sample_tau(tau_total, u_t));
-        t = mw.t;
+      if (delta_cam) {
+        q_t1 = t_s;
+        q_mode = TRACK_DELTA;
+        q_eval = false;
       } else {
+        // The majorant walk to t: q_base samples where it stops, the others walk to the t they drew (one
+        // call site, one inlined DDA).
+        bool base = u_pick <= 1.5f && u_pick < p_base;
+        if (u_pick <= 1.5f && !base) {
 #if HAZE_LOCAL
-        uint k = min(uint((u_pick - p_base) / p_ea * float(K)), K - 1u);
-        t = equi_angular_sample(equi_angular_setup(cam_o, cam_d, lights[k].position.xyz, 0.0f, t_s), u_t);
-#else
-        t = 0.0f;
+          uint k = min(uint((u_pick - p_base) / p_ea * float(K)), K - 1u);
+          t = equi_angular_sample(equi_angular_setup(cam_o, cam_d, lights[k].position.xyz, 0.0f, t_s), u_t);
 #endif
-        t = clamp(t, 0.0f, t_s);
-        mw = maj_walk(cam_o, cam_d, 0.0f, t, T_INF);
-      }
-      float q = p_base > 0.0f ? p_base * mw.sigma * truncated_exp_pdf_tau(mw.tau, tau_total) : 0.0f;
+          t = clamp(t, 0.0f, t_s);
+        }
+        MajWalk mw =
+            maj_walk(cam_o, cam_d, 0.0f, base ? t_s : t, base ? truncated_exp_sample_tau(tau_total, u_t) : T_INF);
+        if (base) t = mw.t;
+        float q = p_base > 0.0f ? p_base * mw.sigma * truncated_exp_pdf_tau(mw.tau, tau_total) : 0.0f;
 #if HAZE_LOCAL
-      for (uint k = 0u; k < K; ++k)
-        q += p_ea / float(K) *
-             equi_angular_pdf(equi_angular_setup(cam_o, cam_d, lights[k].position.xyz, 0.0f, t_s), t);
+        for (uint k = 0u; k < K; ++k)
+          q += p_ea / float(K) *
+               equi_angular_pdf(equi_angular_setup(cam_o, cam_d, lights[k].position.xyz, 0.0f, t_s), t);
 #endif
 #if HAZE_GUIDING
-      q = (1.0f - P) * q + P * guide_mixture_pdf(gm, t);
+        q = (1.0f - P) * q + P * guide_mixture_pdf(gm, t);
 #endif
-      if (!(q > 0.0f)) {
         // A sample the mixture cannot produce again contributes nothing.
-        q = T_INF;
+        q_j = q > 0.0f ? q : T_INF;
+        t_j = t;
+        x = cam_o + cam_d * t;
+        q_t1 = t;
+        q_mode = TRACK_RATIO;
+        q_eval = true;
+        if (haze_only) {
+          known.T = exp(-mw.tau);
+          known.ms = haze_at(x);
+          q_known = true;
+        }
       }
-      q_j = q;
-      t_j = t;
-      x = cam_o + cam_d * t;
-      d = cam_d;
-      q_o = cam_o;
-      q_d = cam_d;
-      q_t0 = 0.0f;
-      q_t1 = t;
-      q_mode = TRACK_RATIO;
-      q_eval = true;
       state = ST_CAMERA;
     }
+#endif
+
+    for (;;) {
+      // The pass's first query may be known in closed form (haze_only).
+      TrackResult r = known;
+      if (!q_known) r = track(q_o, q_d, q_t0, q_t1, q_mode, q_eval, rr_T, rr_T_survive, rng);
+      q_known = false;
+      n_lookups += r.lookups;
+      n_null += r.nulls;
+      if (r.hit) n_real += 1u;
+      step_capped = step_capped || r.capped;
+      violated = violated || r.violated;
+      bool next_sample = false;  // the path is complete
+      bool do_nee = false;       // a scattering vertex is ready at x
+
+#if !HAZE_VOLPATH
+      if (state == ST_CAMERA && q_mode == TRACK_DELTA && pass == 1u && surface_from_delta) {
+        // The first delta track is the surface term's too: reaching t_s is its estimate of T(0, t_s).
+        if (r.hit) {
+          T_surf = 0.0f;
+        } else {
+          state = ST_SURFACE;
+          r.T = 1.0f;
+        }
+      }
+#endif
+      if (state == ST_SURFACE) {
+        T_surf = r.T;
+        if (cam_hit) {
+#if HAZE_SURFACES
+          GpuInstance inst = instances[cam_h.instance];
+          L_surf = r.T * inst.emission.rgb;
+#ifdef BINDING_acc_emit
+          E_surf = L_surf;  // else the scene has no emissive surface and E_surf stays 0 (folded away)
+#endif
+          x = cam_o + cam_d * t_s;
+          n = dot(cam_h.normal, cam_d) < 0.0f ? cam_h.normal : -cam_h.normal;
+          ns = surface_normal(cam_h, n);
+          alb = surface_albedo(cam_h);
+          albedo0 = alb;
+          on_surface = true;
+          to_surface = true;
+          beta = vec3(r.T);
+          beta_start = r.T;
+          depth = 1u;
+          do_nee = max_depth > 0u && r.T > 0.0f;
+          next_sample = !do_nee;
+#endif
+        } else {
+          L_surf = r.T * background(cam_d);
+          next_sample = true;
+        }
+      } else if (state == ST_CAMERA) {
+        // r.T = T(0,t_j) estimate; the camera-ray contribution is T sigma (...) / q(t_j), averaged over N.
+        // A delta-tracked sample has weight 1 at its real collision (T sigma_t is its pdf).
+        float w = r.T * r.ms.sigma_t / (q_j * float(N));
+        if (q_mode == TRACK_DELTA) {
+          w = r.hit ? 1.0f / float(N) : 0.0f;
+          t_j = r.t;
+          x = cam_o + cam_d * r.t;
+        }
+        L_vol += w * r.ms.emit;
+        if (max_depth > 0u && w > 0.0f) {
+          beta = vec3(w) * r.ms.albedo;
+          beta_start = w;
+          g = r.ms.g;
+          on_surface = false;
+          depth = 1u;
+          do_nee = true;
+        } else {
+          next_sample = true;
+        }
+      } else if (state == ST_SHADOW) {
+        if (to_surface)
+          L_surf += pending * r.T;
+        else
+          L_vol += pending * r.T;
+#if HAZE_MULTI || HAZE_SURFACES
+        bool walk_on = depth < max_depth;
+        if (walk_on) {
+          if (on_surface) {
+            // Lambertian: cosine sampling makes the weight the albedo. A bounce below the geometric surface
+            // reflects nothing (no light leaks through a coarse mesh's terminator).
+            d = sample_cosine_hemisphere(ns, vec2(rng_next(rng), rng_next(rng)));
+            beta *= alb;
+            x += n * surface_epsilon(x);
+            walk_on = dot(d, n) > 0.0f;
+#if HAZE_VOLPATH
+            // pbrt-v4's roulette, at surface vertices after the first: survive with the throughput.
+            float m = max(beta.x, max(beta.y, beta.z));
+            if (walk_on && depth > 1u && m < 1.0f) {
+              if (rng_next(rng) >= m)
+                walk_on = false;
+              else
+                beta /= m;
+            }
+#endif
+          } else {
+            d = hg_sample(d, g, vec2(rng_next(rng), rng_next(rng)));
+          }
+        }
+        if (walk_on) {
+          q_o = x;
+          q_d = d;
+          q_t0 = 0.0f;
+          q_t1 = media_exit(x, d);
+          walk_hit = false;
+#if HAZE_SURFACES
+          walk_h = bvh_closest_hit(x, d, 0.0f, T_INF);
+          if (walk_h.triangle != BVH_NONE) {
+            walk_hit = true;
+            q_t1 = walk_h.t;
+          }
+#endif
+          q_mode = TRACK_DELTA;
+          q_eval = false;
+          state = ST_WALK;
+          continue;
+        }
+#endif
+        next_sample = true;
+      } else {  // ST_WALK
+        bool vertex = false;
+#if HAZE_VOLPATH
+        bool camera_ray = depth == 0u;
+        if (camera_ray && !r.capped) {
+          // The camera ray's first vertex decides the term the path belongs to.
+          to_surface = !r.hit;
+          if (!r.hit) T_surf = 1.0f;
+          t_j = r.t;
+          if (!r.hit && !walk_hit) L_surf = background(cam_d);
+        }
+#endif
+        if (r.capped) {
+          // A walk the step cap stopped found no vertex: the path ends here (counted, biased).
+        } else if (r.hit) {
+          x = x + d * r.t;
+          vec3 emitted = beta * r.ms.emit;
+          if (to_surface)
+            L_surf += emitted;
+          else
+            L_vol += emitted;
+#if HAZE_VOLPATH
+          // Absorption ends the path with probability 1 - mean albedo; scattering keeps the colour's ratio.
+          float a = (r.ms.albedo.x + r.ms.albedo.y + r.ms.albedo.z) * (1.0f / 3.0f);
+          vertex = rng_next(rng) < a;
+          if (vertex) beta *= r.ms.albedo / a;
+#else
+          beta *= r.ms.albedo;
+          vertex = true;
+#endif
+          g = r.ms.g;
+          on_surface = false;
+        }
+#if HAZE_SURFACES
+        else if (walk_hit) {
+          // Emission of surfaces reached by the walk is counted by NEE, which samples emissive triangles.
+          x = x + d * q_t1;
+          n = dot(walk_h.normal, d) < 0.0f ? walk_h.normal : -walk_h.normal;
+          ns = surface_normal(walk_h, n);
+          alb = surface_albedo(walk_h);
+          on_surface = true;
+          vertex = true;
+#if HAZE_VOLPATH
+          if (camera_ray) {
+            L_surf = instances[walk_h.instance].emission.rgb;
+#ifdef BINDING_acc_emit
+            E_surf = L_surf;
+#endif
+            albedo0 = alb;
+          }
+#endif
+        }
+#endif
+        if (vertex) {
+          depth += 1u;
+#if HAZE_VOLPATH
+          // Vertices beyond max_depth do no NEE (their emission is counted above, as in the default).
+          do_nee = depth <= max_depth;
+          next_sample = !do_nee;
+#else
+          float m = max(beta.x, max(beta.y, beta.z)) / beta_start;
+          if (m < PATH_RR) {
+            if (rng_next(rng) * PATH_RR >= m) {
+              next_sample = true;
+            } else {
+              beta *= PATH_RR / m;
+              do_nee = true;
+            }
+          } else {
+            do_nee = true;
+          }
+#endif
+        } else {
+          next_sample = true;
+        }
+      }
+
+      if (do_nee) {
+        pending = vec3(0.0f);
+        q_t1 = 0.0f;
+#if HAZE_LIGHTS
+        vec3 o = on_surface ? x + n * surface_epsilon(x) : x;
+        LightSample ls = sample_light(o, vec3(rng_next(rng), rng_next(rng), rng_next(rng)));
+#if HAZE_SURFACES
+        if (on_surface)
+          pending = beta * alb * (INV_PI * surface_cosine(n, ns, ls.wi)) * ls.Li;
+        else
+#endif
+          pending = beta * hg_phase(dot(ls.wi, d), g) * ls.Li;
+        bool visible = any(greaterThan(pending, vec3(0.0f)));
+#if HAZE_SURFACES
+        // Surfaces block shadow rays; an area light's own triangle is excluded by stopping just short of it.
+        if (visible) visible = !bvh_occluded(o, ls.wi, 0.0f, ls.dist < T_INF ? ls.dist * 0.9999f : T_INF);
+#endif
+        if (visible) {
+          q_o = o;
+          q_d = ls.wi;
+          q_t0 = 0.0f;
+          q_t1 = min(ls.dist, media_exit(o, ls.wi));
+        } else {
+          pending = vec3(0.0f);
+        }
+#endif
+        // Without lights (or when blocked) the shadow query is empty and adds nothing.
+        q_mode = TRACK_RATIO;
+        q_eval = false;
+        state = ST_SHADOW;
+        continue;
+      }
+
+      if (next_sample) break;
+    }
+
+#if HAZE_VOLPATH
+    // The path's first medium vertex is the virtual point.
+    float Y = luminance(L_vol);
+    if (!(Y >= 0.0f && Y < 1e30f)) Y = 0.0f;
+    vp_wt += Y * t_j;
+    vp_w += Y;
+#else
+    if (pass > 0u) {
+      // Volume sample j is complete: its luminance contribution weights its distance.
+      float Y = luminance(L_vol - L_vol_start);
+      if (!(Y >= 0.0f && Y < 1e30f)) Y = 0.0f;
+      vp_wt += Y * t_j;
+      vp_w += Y;
+#if HAZE_GUIDING
+      if (scene.guide_learn.y > 0.5f && P_guide > 0.0f) {
+        // The sample's own estimate f(t)/q(t) of the ray integral (L_vol holds it divided by N).
+        float L = Y * float(N);
+        vec4 s_new = guide_update(guide_chosen, L, t_j, scene.guide_learn.z, scene.guide_learn.w);
+        float p_write = guide_mean_w > 0.0f ? min(1.0f, L / guide_mean_w) : (L > 0.0f ? 1.0f : 0.0f);
+        if (rng_next(rng) < p_write) guide_states[guide_slot(guide_pos, rng)] = s_new;
+      }
+#endif
+    }
+#endif
   }
 
   vec3 L = L_surf + L_vol;
   // Emission is not shaded by the albedo: dividing it by a dark albedo would make it a firefly for the
   // denoiser, which adds acc_emit back after remodulation instead.
   vec3 demod = (L_surf - E_surf) / max(albedo0, vec3(DEMOD_MIN_ALBEDO));
-  // Non-finite values never enter the sums (extreme inputs are clamped, not propagated).
-  if (any(isnan(L)) || any(isinf(L)) || any(isnan(demod)) || any(isinf(demod))) {
-    L = vec3(0.0f);
-    L_vol = vec3(0.0f);
-    L_surf = vec3(0.0f);
-    demod = vec3(0.0f);
-    E_surf = vec3(0.0f);
-    atomicAdd(counters[COUNT_NON_FINITE], 1u);
+  counter_add(COUNT_LOOKUPS, n_lookups);
+  counter_add(COUNT_DELTA_REAL, n_real);
+  counter_add(COUNT_DELTA_NULL, n_null);
+  counter_add(COUNT_DISTANCE, n_distance);
+  counter_add(COUNT_GUIDED, n_guided);
+  if (step_capped) counter_add(COUNT_STEP_CAP, 1u);
+  if (violated) counter_add(COUNT_MAJORANT, 1u);
+  // A non-finite sample never enters the sums: it is dropped, and the pixel's means leave it out of their
+  // sample count (ACC_DROPPED); the frame's counter makes it visible.
+  if (any(isnan(L)) || any(isinf(L)) || any(isnan(demod)) || any(isinf(demod)) || isnan(T_surf) ||
+      isinf(T_surf)) {
+    counter_add(COUNT_NON_FINITE, 1u);
+    acc_surf[pixel].w += 1.0f;
+    return;
   }
   bool clamped = false;
   acc_l[pixel] += vec4(L, T_surf);
@@ -436,6 +630,6 @@ void main() {
 #ifdef BINDING_acc_emit
   acc_emit[pixel] += vec4(E_surf, 0.0f);
 #endif
-  if (clamped) atomicAdd(counters[COUNT_CLAMPED_SQUARES], 1u);
+  if (clamped) counter_add(COUNT_CLAMPED_SQUARES, 1u);
   acc_vp[pixel] += vec4(vp_wt, vp_w, vp_g, vp_gn);
 }
