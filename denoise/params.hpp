@@ -29,6 +29,7 @@ struct SvgfParams {
   float normal_threshold = 37.f;    // degrees
   float depth_tolerance = 0.0264f;  // tau, relative
   float border_history = 2.f;       // history cap when motion leaves the screen
+  float history_test = 0.f;         // k of the history's test against the neighbours' mean (0: off)
   // Variance estimate.
   float variance_normal = 30.f;  // degrees
   float variance_depth = 40.f;
@@ -62,6 +63,7 @@ inline SvgfParams volume_defaults() {
   p.firefly_up = 0.959f;
   p.normal_threshold = 180.f;
   p.depth_tolerance = 0.284f;
+  p.history_test = 2.f;
   p.phi_luminance = 2.5f;
   p.phi_depth = 3968.f;
   p.phi_normal = 180.f;
@@ -109,6 +111,11 @@ void reflect(V& v, SvgfParams& p) {
   v.field("normal_threshold", p.normal_threshold, Range{0, 180}, "reprojection: max normal change, degrees");
   v.field("depth_tolerance", p.depth_tolerance, Range::at_least(0),
           "reprojection: |z - z'| <= tolerance * max(z, z')");
+  v.field(
+      "history_test", p.history_test, Range::at_least(0),
+      "adaptive mode: a history whose luminance differs from this frame's 3x3 neighbours' mean by more than "
+      "10% plus k standard errors is cut, to this frame's sample past 2k (0: off; the volume instance's "
+      "reprojection with one virtual point per pixel is wrong where a ray crosses several sheets)");
   v.field("border_history", p.border_history, Range{1, 1024}, "history cap where motion leaves the screen");
   v.field("variance_normal", p.variance_normal, Range{0, 180}, "variance estimate: normal reject, degrees");
   v.field("variance_depth", p.variance_depth, Range::at_least(0), "variance estimate: depth scale");
@@ -157,10 +164,11 @@ template <class V>
 void reflect(V& v, DenoiseSettings& d) {
   v.field("surface", d.surface, "the surface instance (demodulated surface signal, surface G-buffer)");
   v.field("volume", d.volume, "the volume instance (light shafts; normal rejection off, weak depth terms)");
-  v.field("volume_motion", d.volume_motion, reflection::Choices{"virtual_points", "backward", "surface"},
-          "motion vectors of the volume instance: the virtual points projected forward, each pixel's own "
-          "virtual point reprojected into the previous camera (camera motion only, no forward projection), or "
-          "the surface G-buffer's");
+  v.field(
+      "volume_motion", d.volume_motion, reflection::Choices{"virtual_points", "backward", "surface"},
+      "motion vectors of the volume instance: the virtual points projected forward, each pixel's own "
+      "virtual point reprojected into the previous camera (camera motion only, no forward projection), or "
+      "the surface G-buffer's");
 }
 
 }  // namespace haze::denoise

@@ -24,7 +24,7 @@ glsl::SvgfGpuParams gpu_params(const SvgfParams& p, uint32_t W, uint32_t H, bool
   g.firefly = glm::vec4(p.firefly_bias, p.firefly_ipr, p.firefly_max, 0);
   // 180 degrees switches a test off: every cosine passes.
   g.reproject = glm::vec4(p.normal_threshold >= 180.f ? -2.f : cos_deg(p.normal_threshold), p.depth_tolerance,
-                          p.border_history, 0);
+                          p.border_history, p.history_test);
   g.variance = glm::vec4(p.variance_normal >= 180.f ? -2.f : cos_deg(p.variance_normal), p.variance_depth,
                          p.spatial_bias, p.spatial_falloff);
   g.filter_phi = glm::vec4(p.phi_luminance, p.phi_depth, std::min(cos_deg(p.phi_normal), 0.9999f), 1e-4f);

@@ -4,9 +4,8 @@
 // half a minute). The denoisers' defaults are compared with the volume instance's former settings (the
 // surface G-buffer as its geometry, gather normalization, SVGF's sample sigma, the seed's constants) in the
 // same run; thresholds sit within about 3x of the figures measured here (docs/denoising.md has the
-// figures at the bench's 192x108). Goals of issue 13 that are not met and so not tested here: the sheets'
-// contrast within 15% of the reference's by frame 4 (-55% at this size, -36% at 192x108) and a volume
-// history that drops where the reprojection is wrong.
+// figures at the bench's 192x108). The goal of issue 13 that is not met and so not tested here: the sheets'
+// contrast within 15% of the reference's by frame 4 (-53% at this size, -30% at 192x108).
 #include <gtest/gtest.h>
 
 #include <fstream>
@@ -48,8 +47,10 @@ TEST(Shafts, SheetsMeanAndBlocksImproveOnTheFormerVolumeSettings) {
                                {"accumulate", 0.902},
                                {"adapt_ipr", 15},
                                {"phi_luminance", 4},
-                               {"taa_blend", 0.804}}}}}});
+                               {"taa_blend", 0.804},
+                               {"history_test", 0}}}}}});
   const json splat = run({{"denoise", {{"surface", {{"normalization", "splat"}}}}}});
+  const json untested = run({{"denoise", {{"volume", {{"history_test", 0}}}}}});
 
   const double mean_now = late_mean(now, "mean_luminance_over_reference", "volume");
   const double mean_former = late_mean(former, "mean_luminance_over_reference", "volume");
@@ -64,6 +65,11 @@ TEST(Shafts, SheetsMeanAndBlocksImproveOnTheFormerVolumeSettings) {
            j["per_frame"][0]["block_ratio"]["volume_reference"].get<double>();
   };
   auto flip = [](const json& j) { return j["per_frame"][4]["flip_ldr"]["composite"].get<double>(); };
+  // The volume history where the reprojection is wrong over where it is right, frames 2..5.
+  auto history_drop = [](const json& j) {
+    return late_mean(j, "volume_history", "mean_where_wrong") /
+           late_mean(j, "volume_history", "mean_where_right");
+  };
   std::cout << "volume mean error, frames 2-5: defaults " << mean_now << ", former " << mean_former
             << " (noisy input " << noisy << ")\n"
             << "surface mean error, frames 2-5: gather (default) " << surface_gather << ", splat "
@@ -73,14 +79,20 @@ TEST(Shafts, SheetsMeanAndBlocksImproveOnTheFormerVolumeSettings) {
             << "8x8 block pattern at frame 0 / reference's: defaults " << blocks(now) << ", former "
             << blocks(former) << "\n"
             << "FLIP of the composite at frame 4: defaults " << flip(now) << ", former " << flip(former)
-            << "\n";
+            << "\n"
+            << "volume history where wrong / where right, frames 2-5: defaults " << history_drop(now)
+            << ", history_test 0 " << history_drop(untested) << "\n"
+            << "volume mean error, frames 2-5, history_test 0: "
+            << late_mean(untested, "mean_luminance_over_reference", "volume") << "\n";
 
-  // Energy: the volume instance's splat normalization keeps the mean (measured +0.4% to -2.1% over runs:
-  // guiding learns in a different order each run, and the noisy input's own figure moves by as much, +0.7% to
-  // +3.1%); the former gather lost 16 to 17% with the lights chosen uniformly, 6.9 to 7.9% since the choice
-  // by power (issue 14) sends 96% of the shadow rays to the sun (a less noisy input). Catches: a splat pass
-  // that does not divide by the weight sums (measured -81%), and gather for the volume (the former settings).
-  EXPECT_LT(std::abs(mean_now), 0.05);
+  // Energy: the volume instance's splat normalization keeps the mean (measured +0.4% to -2.1% over runs
+  // without the history test, -2.6% to -4.0% with it at this size, where a sheet is 2-4 pixels wide; -0.4% to
+  // -1.5% at the bench's 192x108: guiding learns in a different order each run, and the noisy input's own
+  // figure moves by as much, +0.7% to +3.1%); the former gather lost 14 to 17% with the lights chosen
+  // uniformly, 6.9 to 7.9% since the choice by power (issue 14) sends 96% of the shadow rays to the sun (a
+  // less noisy input). Catches: a splat pass that does not divide by the weight sums (measured -81%), and
+  // gather for the volume (the former settings).
+  EXPECT_LT(std::abs(mean_now), 0.06);
   EXPECT_LT(mean_former, -0.04);
   // The surface instance keeps SVGF's gather by default (-18.5% here on this sequence's sparse noise with
   // uniform light choice, -8.1% with the choice by power); splat, the documented remedy, keeps the mean
@@ -98,6 +110,11 @@ TEST(Shafts, SheetsMeanAndBlocksImproveOnTheFormerVolumeSettings) {
   EXPECT_GT(blocks(former), 1.2);
   // The composite is closer to the reference by FLIP (measured 0.153 against 0.171).
   EXPECT_LT(flip(now), flip(former) - 0.007);
+  // The volume history drops where the reprojection is wrong (the reference's luminance at the reprojected
+  // position differs by more than 30%): wrong / right 0.91 to 0.93 over runs with the history test, 0.996 to
+  // 1.005 without it. Catches: the history test switched off or ignored (history_test 0, the `untested` run).
+  EXPECT_LT(history_drop(now), 0.96);
+  EXPECT_GT(history_drop(untested), 0.98);
   EXPECT_EQ(context().validation_messages(), 0u);
 }
 

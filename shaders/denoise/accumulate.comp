@@ -1,8 +1,8 @@
 #version 460
 // SVGF pass 2: temporal accumulation. Firefly clamp of the input (adaptive mode), reprojection of the
 // history with normal and depth tests, stochastic bilinear taps, an extended search after rejection and
-// border reuse for motion that leaves the screen (adaptive mode), the percentile-adaptive history cap, and
-// the blend of colour and luminance moments. The classic mode (Schied et al. 2017) averages the valid
+// border reuse for motion that leaves the screen (adaptive mode), the percentile-adaptive history cap, the
+// history test against the neighbours' mean (adaptive mode, history_test > 0), and the blend of colour and luminance moments. The classic mode (Schied et al. 2017) averages the valid
 // bilinear taps, falls back to a 3x3 search and blends with alpha = max(0.2, 1/n).
 #extension GL_GOOGLE_include_directive : require
 layout(local_size_x = 8, local_size_y = 8) in;
@@ -128,10 +128,11 @@ void main() {
   col = clamp(col, vec3(0.0f), vec3(SVGF_HALF_MAX));
   float Y = luminance(col);
   vec4 pct = vec4(0.0f);
+  float Y_max = SVGF_HALF_MAX;
   if (CLASSIC == 0u) {
     pct = percentiles_at(pix);
     // Firefly clamp: Y_max = min(hard clamp, bias + P_fu + k_f (P_fu - P_fl)).
-    float Y_max = min(P.firefly.z, P.firefly.x + pct.y + P.firefly.y * (pct.y - pct.x));
+    Y_max = min(P.firefly.z, P.firefly.x + pct.y + P.firefly.y * (pct.y - pct.x));
     if (Y > Y_max) {
       col *= Y_max / Y;
       Y = Y_max;
@@ -253,6 +254,30 @@ void main() {
       float m =
           (1.0f - s * linstep(pct.w, pct.w + r, Y_h)) * (1.0f - s * (1.0f - linstep(pct.z - r, pct.z, Y_h)));
       if (m < 1.0f) cap = min(cap, 1.0f / (1.0f - m));
+      if (P.reproject.w > 0.0f) {
+        // History test: this frame's mean of the (clamped) input luminance over the 8 neighbours and their
+        // variance per sample, which also gives the history's (the same signal averaged over h.n frames). A
+        // failed history gives way to this frame's sample. The pixel's own sample takes no part in the
+        // decision, so the reset does not select on the value it keeps (with skewed noise that would bias the
+        // mean).
+        float s1 = 0.0f, s2 = 0.0f, k = 0.0f;
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) {
+            ivec2 qi = ivec2(pix) + ivec2(dx, dy);
+            if (!inside(qi) || (dx == 0 && dy == 0)) continue;
+            uint qb = (uint(qi.y) * W + uint(qi.x)) * P.layout_in.x + P.layout_in.y;
+            vec3 cq = max(vec3(colour[qb], colour[qb + 1u], colour[qb + 2u]), vec3(0.0f));
+            float Yq = svgf_finite(vec4(cq, 0.0f)) ? min(luminance(cq), Y_max) : 0.0f;
+            s1 += Yq;
+            s2 += Yq * Yq;
+            k += 1.0f;
+          }
+        float mean_n = s1 / k, var_q = max(s2 / k - mean_n * mean_n, 0.0f) * k / max(k - 1.0f, 1.0f);
+        // Sparse noise leaves many neighbourhoods all zero (no variance seen): the history's own sample
+        // variance bounds the estimate from below.
+        var_q = max(var_q, h.m2 - h.m1 * h.m1);
+        cap = mix(cap, 1.0f, history_test(Y_h, var_q / max(h.n, 1.0f), mean_n, var_q / k));
+      }
     }
     n = min(h.n + 1.0f, max(cap, 1.0f));
     alpha = max(1.0f - P.accumulate.x, 1.0f / n);

@@ -146,4 +146,17 @@ float filter_weight_symmetric(FilterCentre c, FilterCentre q, vec2 o) {
   return sqrt(filter_weight(c, q.g, q.Y, o) * filter_weight(q, c.g, c.Y, -o));
 }
 
+// History test on the signal itself (adaptive mode, reproject.w = k > 0): the history's mean luminance Y_h
+// against this frame's mean over the neighbours, mean_n, with var_h and var_mean the variances of the two
+// estimates. Past a 10% tolerance, a difference of more than k of their combined standard errors means the
+// history shows something else (the volume instance: one virtual point per pixel stands for several sheets
+// and moves the others with the wrong depth). Returns how far to cut the history: 0 below k, 1 past 2k.
+float history_test(float Y_h, float var_h, float mean_n, float var_mean) {
+  float k = P.reproject.w;
+  if (k <= 0.0f) return 0.0f;
+  float d = max(abs(Y_h - mean_n) - 0.1f * max(Y_h, mean_n), 0.0f);
+  float z = d / (sqrt(max(var_h, 0.0f) + max(var_mean, 0.0f)) + 1e-6f * max(Y_h, mean_n) + 1e-12f);
+  return linstep(k, 2.0f * k, z);
+}
+
 #endif

@@ -10,7 +10,8 @@ struct SvgfGpuParams {
   vec4 accumulate;   // x: a (alpha = max(1 - a, 1/n)), y: max history, z: adaptivity strength s, w: k_a
   vec4 percentiles;  // firefly low, up; adaptivity low, up (quantiles in [0, 1])
   vec4 firefly;      // x: bias, y: k_f, z: hard clamp (max luminance)
-  vec4 reproject;    // x: cos of the normal threshold, y: depth tolerance tau, z: border history cap
+  vec4 reproject;    // x: cos of the normal threshold, y: depth tolerance tau, z: border history cap,
+                     // w: k of the history test (0: off)
   vec4 variance;     // x: cos of the normal reject, y: depth accept (phi), z: spatial bias b, w: falloff f
   vec4 filter_phi;   // x: phi_l, y: phi_z, z: cos of phi_n (adaptive) or exponent (classic), w: epsilon
   vec4 filter_fade;  // x: zbias normals, y: zbias depth
