@@ -214,7 +214,7 @@ void main() {
   uint passes = N + 1u;
 #endif
   TrackResult known;  // a query's result in closed form
-  known.T = 1.0f;
+  known.T = Trans(1.0f);
   known.hit = false;
   known.t = 0.0f;
   known.ms = haze_at(cam_o);
@@ -250,10 +250,10 @@ void main() {
       q_mode = TRACK_RATIO;
       q_eval = false;
       if (haze_only) {
-        known.T = exp(-tau_total);
+        known.T = haze_transmittance(tau_total);
         q_known = true;
         if (!cam_hit) {
-          T_surf = known.T;
+          T_surf = trans_mean(known.T);
           L_surf = known.T * background(cam_d);
           continue;
         }
@@ -330,7 +330,7 @@ void main() {
         q_mode = TRACK_RATIO;
         q_eval = true;
         if (haze_only) {
-          known.T = exp(-mw.tau);
+          known.T = haze_transmittance(mw.tau);
           known.ms = haze_at(x);
           q_known = true;
         }
@@ -359,12 +359,14 @@ void main() {
           T_surf = 0.0f;
         } else {
           state = ST_SURFACE;
-          r.T = 1.0f;
+#if !HAZE_CHROMATIC
+          r.T = 1.0f;  // chromatic: r.T is the spectral tracking weight of reaching t_s, T's estimate
+#endif
         }
       }
 #endif
       if (state == ST_SURFACE) {
-        T_surf = r.T;
+        T_surf = trans_mean(r.T);
         if (cam_hit) {
 #if HAZE_SURFACES
           GpuInstance inst = instances[cam_h.instance];
@@ -378,9 +380,9 @@ void main() {
           on_surface = true;
           to_surface = true;
           beta = vec3(r.T);
-          beta_start = r.T;
+          beta_start = trans_max(r.T);
           depth = 1u;
-          do_nee = max_depth > 0u && r.T > 0.0f;
+          do_nee = max_depth > 0u && trans_max(r.T) > 0.0f;
           next_sample = !do_nee;
 #endif
         } else {
@@ -390,16 +392,22 @@ void main() {
       } else if (state == ST_CAMERA) {
         // r.T = T(0,t_j) estimate; the camera-ray contribution is T sigma (...) / q(t_j), averaged over N.
         // A delta-tracked sample has weight 1 at its real collision (T sigma_t is its pdf).
-        float w = r.T * r.ms.sigma_t / (q_j * float(N));
+#if HAZE_CHROMATIC
+        // Per channel: T_c sigma_t,c / q, sigma_t,c estimated by the chosen component's sigma_t * color.
+        Trans w = r.T * r.ms.sigma_t * r.ms.color / (q_j * float(N));
+#else
+        Trans w = r.T * r.ms.sigma_t / (q_j * float(N));
+#endif
         if (q_mode == TRACK_DELTA) {
-          w = r.hit ? 1.0f / float(N) : 0.0f;
+          // Chromatic: the spectral tracking weight (1 in grey media).
+          w = r.hit ? r.T / float(N) : Trans(0.0f);
           t_j = r.t;
           x = cam_o + cam_d * r.t;
         }
         L_vol += w * r.ms.emit;
-        if (max_depth > 0u && w > 0.0f) {
+        if (max_depth > 0u && trans_max(w) > 0.0f) {
           beta = vec3(w) * r.ms.albedo;
-          beta_start = w;
+          beta_start = trans_max(w);
           g = r.ms.g;
           on_surface = false;
           depth = 1u;
@@ -460,13 +468,18 @@ void main() {
         bool vertex = false;
 #if HAZE_VOLPATH
         bool camera_ray = depth == 0u;
+#if HAZE_CHROMATIC
+        if (!r.capped) beta *= r.T;  // the spectral tracking weight
+#endif
         if (camera_ray && !r.capped) {
           // The camera ray's first vertex decides the term the path belongs to.
           to_surface = !r.hit;
-          if (!r.hit) T_surf = 1.0f;
+          if (!r.hit) T_surf = trans_mean(r.T);
           t_j = r.t;
-          if (!r.hit && !walk_hit) L_surf = background(cam_d);
+          if (!r.hit && !walk_hit) L_surf = beta * background(cam_d);
         }
+#elif HAZE_CHROMATIC
+        if (!r.capped) beta *= r.T;  // the spectral tracking weight
 #endif
         if (r.capped) {
           // A walk the step cap stopped found no vertex: the path ends here (counted, biased).
@@ -500,7 +513,7 @@ void main() {
           vertex = true;
 #if HAZE_VOLPATH
           if (camera_ray) {
-            L_surf = instances[walk_h.instance].emission.rgb;
+            L_surf = beta * instances[walk_h.instance].emission.rgb;
             E_surf = L_surf;
             albedo0 = alb;
           }
