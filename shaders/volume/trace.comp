@@ -95,6 +95,30 @@ vec3 square_capped(vec3 x, inout bool clamped) {
   return min(s, vec3(SQUARE_MAX));
 }
 
+#if HAZE_LOCAL
+// Equi-angular sampling towards local light k on [0, t_s]; a spot's restricted to the part of the ray inside
+// its cone (it lights nothing elsewhere), when q_base covers the rest (clip): the sample and its pdf use the
+// same segment. `empty`: the ray misses the cone, the light yields no sample and its pdf is 0.
+struct LightSegment {
+  EquiAngular e;
+  float t0, t1;
+  bool empty;
+};
+LightSegment light_segment(vec3 o, vec3 d, uint k, float t_s, bool clip) {
+  LightSegment s;
+  vec2 ab = clip ? cone_clip(o, d, lights[k].position.xyz, lights[k].direction.xyz, lights[k].params.x, 0.0f, t_s)
+                 : vec2(0.0f, t_s);
+  s.empty = !(ab.x < ab.y);
+  s.t0 = ab.x;
+  s.t1 = s.empty ? ab.x : ab.y;
+  s.e = equi_angular_setup(o, d, lights[k].position.xyz, s.t0, s.t1);
+  return s;
+}
+float light_segment_pdf(LightSegment s, float t) {
+  return s.empty || t < s.t0 || t > s.t1 ? 0.0f : equi_angular_pdf(s.e, t);
+}
+#endif
+
 // Offset of ray origins off a surface, relative to the scene's scale at that point.
 float surface_epsilon(vec3 x) {
   return 1e-4f * max(1.0f, max(abs(x.x), max(abs(x.y), abs(x.z))));
@@ -303,10 +327,17 @@ void main() {
         // The majorant walk to t: q_base samples where it stops, the others walk to the t they drew (one
         // call site, one inlined DDA).
         bool base = u_pick <= 1.5f && u_pick < p_base;
+        bool ea_empty = false;
+#if HAZE_LOCAL
+        // Spots' cones clip their equi-angular segments only where q_base covers the rest of the ray.
+        bool cone_clipped = p_base > 0.0f;
+#endif
         if (u_pick <= 1.5f && !base) {
 #if HAZE_LOCAL
           uint k = min(uint((u_pick - p_base) / p_ea * float(K)), K - 1u);
-          t = equi_angular_sample(equi_angular_setup(cam_o, cam_d, lights[k].position.xyz, 0.0f, t_s), u_t);
+          LightSegment ls = light_segment(cam_o, cam_d, k, t_s, cone_clipped);
+          t = equi_angular_sample(ls.e, u_t);
+          ea_empty = ls.empty;
 #endif
           t = clamp(t, 0.0f, t_s);
         }
@@ -315,15 +346,13 @@ void main() {
         if (base) t = mw.t;
         float q = p_base > 0.0f ? p_base * mw.sigma * truncated_exp_pdf_tau(mw.tau, tau_total) : 0.0f;
 #if HAZE_LOCAL
-        for (uint k = 0u; k < K; ++k)
-          q += p_ea / float(K) *
-               equi_angular_pdf(equi_angular_setup(cam_o, cam_d, lights[k].position.xyz, 0.0f, t_s), t);
+        for (uint k = 0u; k < K; ++k) q += p_ea / float(K) * light_segment_pdf(light_segment(cam_o, cam_d, k, t_s, cone_clipped), t);
 #endif
 #if HAZE_GUIDING
         q = (1.0f - P) * q + P * guide_mixture_pdf(gm, t);
 #endif
-        // A sample the mixture cannot produce again contributes nothing.
-        q_j = q > 0.0f ? q : T_INF;
+        // A sample the mixture cannot produce again contributes nothing (nor does a light's empty segment).
+        q_j = q > 0.0f && !ea_empty ? q : T_INF;
         t_j = t;
         x = cam_o + cam_d * t;
         q_t1 = t;
