@@ -92,11 +92,12 @@ INSTANTIATE_TEST_SUITE_P(Estimators, ChromaticP,
                          [](const auto& i) { return i.param.estimator + (i.param.vdb ? "_vdb" : "_haze"); });
 
 // Beer-Lambert per channel: a white environment seen through an absorbing slab (albedo 0) is
-// exp(-sigma c_k / cos) in channel k. The default estimator takes the haze in closed form (exact),
-// ratio-tracks the VDB box per channel; volpath delta-tracks both (spectral tracking's weights). Injected:
-// the closed form of the haze with the grey exp(-tau) (haze_transmittance without the colour): the default
-// haze case's exact values miss in channels 0 and 1 (all 144 pixels each); the spectral tracking weight of a
-// null collision without its 1 / (1 - P_r): volpath pooled z of -40 and below.
+// exp(-sigma c_k / cos) in channel k. The default estimator takes the haze in closed form (exact) and the
+// VDB box's T from its delta-tracked camera sample; volpath delta-tracks both (spectral tracking's weights).
+// Injected: the haze's closed form with the grey exp(-tau) (haze_transmittance without the colour): default
+// haze, 176 exact mismatches, pooled z -2.6e5 and -1.2e5 in channels 0 and 1; a null collision's spectral
+// tracking weight without its 1 / (1 - P_r): pooled z -113 and -52 in channels 0 and 1 (volpath; the default
+// with the VDB box, whose transmittance comes from the delta-tracked camera sample, -114 and -52).
 TEST_P(ChromaticP, BeerLambertPerChannel) {
   const Case c = GetParam();
   const double sigma = 1.2;
@@ -116,8 +117,9 @@ TEST_P(ChromaticP, BeerLambertPerChannel) {
 // Single scattering of a vertical sun in the slab, per channel: the 1D integral along each camera ray of
 // sigma_s,k p E T_camera,k T_sun,k with sigma_t,k = sigma c_k.
 // Injected: the camera sample's weight T sigma_t / q with the grey sigma_t (the chosen component's colour
-// dropped): default pooled z of +30 and more in channels 0 and 1; the real collision's weight without
-// 1 / P_r: volpath pooled z far off in every channel.
+// dropped): default haze, pooled z +789 and +456 in channels 0 and 1; a real collision's spectral tracking
+// weight without its 1 / P_r: volpath pooled z -97, -83, -58, default VDB box (delta-tracked camera samples)
+// -175, -150, -101.
 TEST_P(ChromaticP, SunlitSlabSingleScatteringPerChannel) {
   const Case c = GetParam();
   const double sigma = 0.8, albedo = 0.7, g = 0.4, E = 2.0;
