@@ -20,8 +20,9 @@ demo: build
 test: build
 	cd $(BUILD) && ctest --output-on-failure -j $(JOBS)
 
+# The viewer's part of the bench needs an X display: a private Xvfb when there is none.
 bench: build
-	MESA_SHADER_CACHE_DIR=$(CURDIR)/$(BUILD)/mesa-cache $(BUILD)/haze bench
+	MESA_SHADER_CACHE_DIR=$(CURDIR)/$(BUILD)/mesa-cache $(if $(DISPLAY),,scripts/xvfb.sh) $(BUILD)/haze bench
 
 clean:
 	rm -rf $(BUILD) out

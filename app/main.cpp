@@ -25,6 +25,7 @@
 #include "scene/animation.hpp"
 #include "scene/scene.hpp"
 #include "vdb/vdb.h"
+#include "view/viewer.hpp"
 
 namespace {
 
@@ -246,6 +247,26 @@ int main(int argc, char** argv) {
   render->add_option("--frames", frames,
                      "frames A:B (both included) of an animated scene; default render.frames");
 
+  auto* view = app.add_subcommand(
+      "view", "a live window on a scene: camera, parameters, layers, GPU times, memory (docs/viewer.md)");
+  std::string view_scene, view_size;
+  std::vector<std::string> view_sets;
+  haze::view::ViewOptions vo;
+  view->add_option("scene", view_scene, "scene JSON file")->required();
+  view->add_option("--size", view_size, "WIDTHxHEIGHT (overrides render.width/height)");
+  view->add_option("--spp", vo.spp, "samples added per frame (default 1)");
+  view->add_option("--set", view_sets, "override any scene value: dotted.path=value (repeatable)");
+  view->add_option("--script", vo.script,
+                   "JSON list of {\"frame\": k, ...} entries to apply (docs/viewer.md)");
+  view->add_option("--frames", vo.frames, "exit after N frames (needed by --script and --screenshot)");
+  view->add_option("--screenshot", vo.screenshot, "PNG of the window's last frame, written at exit");
+  view->add_option("--stats", vo.stats, "JSON of the run: per-frame wall and GPU times, samples, compiles");
+  view->add_option("--scale", vo.scale,
+                   "window pixels per rendered pixel (default: as large as fits 960x720)");
+  view->add_option("--layer", vo.layer, "the layer shown first (default final)");
+  bool view_no_ui = false;
+  view->add_flag("--no-ui", view_no_ui, "start with the panel hidden (H shows it)");
+
   auto* dn = app.add_subcommand(
       "denoise", "denoise an EXR sequence with the surface SVGF instance (layers: see README)");
   std::string dn_in, dn_out;
@@ -373,7 +394,7 @@ int main(int argc, char** argv) {
   bench->add_flag("--json", bo.json, "print JSON instead of a table");
   bench->add_option("--only", bo.only,
                     "run only these parts, comma-separated: first_frame, passes, bvh, svgf, guiding, "
-                    "velocity, volume_repr, efficiency");
+                    "velocity, volume_repr, view, shafts, efficiency");
   bench->add_option("--size", bo.size, "image size WIDTHxHEIGHT");
   bench->add_option("--spp", bo.spp, "samples per measurement");
   bench->add_option("--denoise-sizes", bo.denoise_sizes, "sizes of the SVGF timings, WxH[,WxH...]");
@@ -394,6 +415,20 @@ int main(int argc, char** argv) {
   bench->add_option("--efficiency-cases", bo.efficiency_cases,
                     "efficiency cases, comma-separated: dense_cloud, haze_shaft, point_in_box, env_cloud, "
                     "sheets (default: all)");
+  bench->add_option("--shafts-size", bo.shafts_size, "image size of the shaft sequence (WIDTHxHEIGHT)");
+  bench->add_option("--shafts-frames", bo.shafts_frames, "frames of the shaft sequence")
+      ->check(CLI::Range(1, 10000));
+  bench
+      ->add_option("--shafts-reference-spp", bo.shafts_reference_spp,
+                   "samples per reference frame of the shaft sequence")
+      ->check(CLI::Range(1, 1 << 20));
+  bench->add_option("--reference-dir", bo.reference_dir,
+                    "cache of the shaft sequence's references (default $XDG_CACHE_HOME/haze/references)");
+  bench->add_option("--shafts-set", bo.shafts_set,
+                    "JSON object merged into the shaft sequence's scene, e.g. '{\"denoise\": {\"volume\": "
+                    "{\"iterations\": 3}}}'");
+  bench->add_option("--images", bo.images_dir,
+                    "write PNGs of the shaft sequence's frames 0, 4 and the last here");
 
   try {
     app.parse(argc, argv);
@@ -467,6 +502,21 @@ int main(int argc, char** argv) {
               g.name, g.type, g.grid_class, g.index_min.x, g.index_min.y, g.index_min.z, g.index_max.x,
               g.index_max.y, g.index_max.z, g.voxel_size.x, g.active_voxels, g.value_min, g.value_max,
               g.memory_bytes / 1e6);
+      }
+      return 0;
+    }
+    if (*view) {
+      if (!vo.screenshot.empty() && vo.frames == 0)
+        throw std::runtime_error("--screenshot needs --frames N: the screenshot is the last of N frames");
+      vo.ui = !view_no_ui;
+      scene::Scene s = load_scene(view_scene, view_sets, view_size, "");
+      // The viewer shows one frame: an animated scene at its first.
+      s = scene::scene_at_frame(s, scene::frame_range(s).first);
+      render::check_part_specs(s);
+      haze::view::ViewRun r = haze::view::run_view(s, vo, co);
+      if (r.validation_messages > 0) {
+        fmt::print(stderr, "haze: {} Vulkan validation messages\n", r.validation_messages);
+        return 3;
       }
       return 0;
     }

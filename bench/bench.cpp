@@ -17,7 +17,9 @@
 #include "bench/bench_util.hpp"
 #include "bench/efficiency_bench.hpp"
 #include "bench/guiding_bench.hpp"
+#include "bench/shafts_bench.hpp"
 #include "bench/velocity_bench.hpp"
+#include "bench/view_bench.hpp"
 #include "bench/volume_repr_bench.hpp"
 #include "denoise/svgf.hpp"
 #include "render/renderer.hpp"
@@ -379,6 +381,13 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
             j["svgf_surface"][sz][kernel]["total"]["ratio_to_copy"],
             fmt::format("surface SVGF, all passes of a frame ({} a-trous) / copy of one RGBA16F image",
                         kernel));
+  if (j.contains("view") && !j["view"].contains("skipped")) {
+    const auto& r = j["view"]["wall_over_gpu"];
+    add("viewer wall/GPU", r["mean"],
+        fmt::format(
+            "viewer frame wall time / GPU time of its passes, mean over seeds ({:.3f}..{:.3f}); goal <= 1.15",
+            r["min"].get<double>(), r["max"].get<double>()));
+  }
   if (j.contains("bvh"))
     add("BVH GPU/Embree", j["bvh"]["gpu_over_embree"],
         "BVH rays/s on the GPU / Embree rays/s on all CPU threads, same rays and triangles");
@@ -393,8 +402,27 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
       rows.back()["max"] = r["max"];
     }
     const auto& v = j["guiding"]["volume_denoiser"];
-    add("motion surface/virtual pts", v["relmse_ratio_surface_motion_over_virtual_points"],
+    auto ratio = [&](const std::string& key, const json& r, const std::string& meaning) {
+      add(key, r["ratio_of_means"],
+          fmt::format("{} (ratio of means over seeds; per seed {:.2f}..{:.2f})", meaning,
+                      r["min"].get<double>(), r["max"].get<double>()));
+      rows.back()["min"] = r["min"];
+      rows.back()["max"] = r["max"];
+    };
+    ratio(
+        "motion surface/virtual pts", v["relmse_surface_motion_over_virtual_points"],
         "denoised volume relMSE on a panning shaft, surface / virtual-point motion; >1: virtual points win");
+    ratio("motion backward/virtual pts", v["relmse_backward_over_virtual_points"],
+          "the same, each pixel's own virtual point reprojected backward / projected forward; >1: forward "
+          "wins");
+    for (const auto& [key, label] : {std::pair<const char*, const char*>{"volume_denoiser", "panning shaft"},
+                                     {"volume_occluder", "shaft before a moving occluder"}}) {
+      ratio(fmt::format("geometry surface/vp {}", key == std::string("volume_denoiser") ? "pan" : "occluder"),
+            j["guiding"][key]["relmse_surface_geometry_over_virtual_points"],
+            fmt::format(
+                "denoised volume relMSE, {}: surface G-buffer / virtual points as the volume's geometry",
+                label));
+    }
     const auto& c = v["instances"];
     add("svgf.volume/surface time", c["volume_over_surface_time"],
         "GPU time per frame of the two SVGF instances");
@@ -445,22 +473,49 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
     add("kernel share of cold 1st frame", f["cold"]["pipeline_share_of_first_frame"],
         "compiling permutations and creating pipelines / the cold first frame");
   }
+  if (j.contains("shafts")) {
+    const auto& sh = j["shafts"];
+    const auto& c = sh["contrast_error_from_frame_4"];
+    if (!c.empty()) {
+      add("shafts contrast error f>=4", c["mean"],
+          fmt::format("sheet contrast of the denoised volume term / the reference's - 1, frames 4.. "
+                      "({:+.3f}..{:+.3f})",
+                      c["min"].get<double>(), c["max"].get<double>()));
+      rows.back()["min"] = c["min"];
+      rows.back()["max"] = c["max"];
+    }
+    for (const char* inst : {"surface", "volume"}) {
+      const auto& m = sh[fmt::format("mean_error_{}", inst)];
+      if (m.empty()) continue;
+      add(fmt::format("shafts mean error {}", inst), m["mean"],
+          fmt::format("denoised {} mean luminance / the reference's - 1, over frames ({:+.3f}..{:+.3f})",
+                      inst, m["min"].get<double>(), m["max"].get<double>()));
+      rows.back()["min"] = m["min"];
+      rows.back()["max"] = m["max"];
+    }
+    if (sh["temporal"]["volume"]["change_ratio"].is_number())
+      add("shafts change ratio volume", sh["temporal"]["volume"]["change_ratio"],
+          "frame-to-frame change of the denoised volume term / the reference's (1: no flicker, no lag)");
+  }
   return rows;
 }
 
 }  // namespace
 
 const std::vector<std::string>& part_names() {
-  static const std::vector<std::string> names = {"first_frame", "passes",   "bvh",         "svgf",
-                                                 "guiding",     "velocity", "volume_repr", "efficiency"};
+  static const std::vector<std::string> names = {"first_frame", "passes",    "bvh",         "svgf",
+                                                 "guiding",     "velocity",  "volume_repr", "view",
+                                                 "shafts",      "efficiency"};
   return names;
 }
 
 std::vector<std::string> parse_only(const std::string& only) {
   if (only.empty()) {
-    // The efficiency comparison takes minutes: it runs when named.
+    // The efficiency comparison takes minutes and the shaft sequence's first run renders its references
+    // (about 40 minutes on lavapipe): they run when named.
     std::vector<std::string> all = part_names();
-    all.erase(std::find(all.begin(), all.end(), "efficiency"));
+    for (const char* named_only : {"efficiency", "shafts"})
+      all.erase(std::find(all.begin(), all.end(), named_only));
     return all;
   }
   std::set<std::string> wanted;
@@ -486,6 +541,23 @@ int run(const Options& o, const gpu::ContextOptions& co) {
   for (const std::string& sz : split(o.denoise_sizes, ',')) parse_size(sz, "--denoise-sizes");
   if (o.denoise_sizes.empty()) throw std::runtime_error("--denoise-sizes: expected WxH[,WxH...]");
   auto [gw, gh] = parse_size(o.guiding_size, "--guiding-size");
+  auto [shw, shh] = parse_size(o.shafts_size, "--shafts-size");
+  if (o.shafts_frames < 1)
+    throw std::runtime_error(fmt::format("--shafts-frames {}: must be >= 1", o.shafts_frames));
+  json set_patch;
+  if (!o.shafts_set.empty()) {
+    try {
+      set_patch = json::parse(o.shafts_set);
+    } catch (const std::exception& e) {
+      throw std::runtime_error(
+          fmt::format("--shafts-set: not JSON ({}); expected an object such as "
+                      "'{{\"denoise\": {{\"volume\": {{\"iterations\": 3}}}}}}'",
+                      e.what()));
+    }
+    if (!set_patch.is_object()) throw std::runtime_error("--shafts-set: expected a JSON object");
+  }
+  if (o.shafts_reference_spp < 1)
+    throw std::runtime_error(fmt::format("--shafts-reference-spp {}: must be >= 1", o.shafts_reference_spp));
   if (o.spp < 1) throw std::runtime_error(fmt::format("--spp {}: must be >= 1", o.spp));
   std::vector<std::string> efficiency_cases;
   if (!o.efficiency_cases.empty())
@@ -540,6 +612,18 @@ int run(const Options& o, const gpu::ContextOptions& co) {
     eo.scale = o.efficiency_scale;
     eo.cases = efficiency_cases;
     j["efficiency"] = bench_efficiency(ctx, eo);
+  }
+  if (wants("view")) j["view"] = bench_view(co, s, ViewBenchOptions{});
+  if (wants("shafts")) {
+    ShaftsOptions so;
+    so.width = shw;
+    so.height = shh;
+    so.frames = o.shafts_frames;
+    so.reference_spp = o.shafts_reference_spp;
+    so.reference_dir = o.reference_dir;
+    so.images_dir = o.images_dir;
+    so.set = set_patch;
+    j["shafts"] = bench_shafts(ctx, so);
   }
   const std::vector<std::string> svgf_sizes = split(o.denoise_sizes, ',');
   const json rows = summarize(j, svgf_sizes);
@@ -616,6 +700,8 @@ int run(const Options& o, const gpu::ContextOptions& co) {
     if (j.contains("velocity")) print_velocity(j["velocity"]);
     if (j.contains("volume_repr")) print_volume_repr(j["volume_repr"]);
     if (j.contains("efficiency")) print_efficiency(j["efficiency"]);
+    if (j.contains("view")) print_view(j["view"]);
+    if (j.contains("shafts")) print_shafts(j["shafts"]);
   }
   if (messages > 0) {
     fmt::print(stderr, "haze: {} Vulkan validation messages\n", messages);

@@ -24,6 +24,13 @@ struct Options {
   double efficiency_scale = 1.0;                    // its image sizes and sample counts, times this
   std::string efficiency_cases;                     // comma-separated case names; empty: all
   std::string only;                                 // comma-separated part names; empty: all
+  // The shaft sequence (bench/shafts_bench.hpp).
+  std::string shafts_size = "192x108";
+  int shafts_frames = 12;
+  int shafts_reference_spp = 1024;
+  std::string reference_dir;  // the shaft references' cache; "": $XDG_CACHE_HOME/haze/references
+  std::string images_dir;     // PNGs of the shaft sequence's frames 0, 4 and the last; "": none
+  std::string shafts_set;     // JSON merged into the shaft scene (e.g. '{"denoise": {"volume": {...}}}')
 };
 
 // The parts `only` names (when empty: all but efficiency, which runs only when named); throws a one-line

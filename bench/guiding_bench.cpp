@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
+#include <map>
 #include <numeric>
 
 #include "bench/bench_util.hpp"
@@ -109,87 +111,166 @@ json equal_time(gpu::Context& ctx, const GuidingBenchOptions& o, bool vdb) {
                                         std::accumulate(err_g.begin(), err_g.end(), 0.0)}};
 }
 
-// The volume instance on a camera panning past the shaft, reprojected with the virtual points' motion or
-// with the surface motion, against a reference sequence; and its time and memory next to the surface
-// instance's.
-json temporal(gpu::Context& ctx, const GuidingBenchOptions& o) {
+// A shaft in front of a far wall (z = 12) with a box moving behind the shaft, between it and the wall, seen
+// by a camera that does not move: the surface G-buffer changes where the air in front of it does not.
+json occluder_scene(int w, int h, int frame, int frames, uint32_t seed) {
+  json j = shaft_scene(w, h, false, true, seed);
+  j["camera"] = {{"position", {0, 1.2, 0}}, {"target", {0, 1.4, 1}}, {"fov_y", 50}};
+  const double x = -2.0 + 4.0 * frame / std::max(1, frames - 1);
+  j["surfaces"].push_back({{"mesh", {{"kind", "box"}, {"size", {8, 6, 0.2}}}},
+                           {"transform", {{"translate", {0, 1, 12}}}},
+                           {"albedo", {0.6, 0.6, 0.6}}});
+  j["surfaces"].push_back({{"mesh", {{"kind", "box"}, {"size", {0.8, 2.0, 0.3}}}},
+                           {"transform", {{"translate", {x, 0.8, 8.5}}}},
+                           {"albedo", {0.8, 0.3, 0.2}}});
+  return j;
+}
+
+// The panning camera of the motion figure.
+json panning_scene(int w, int h, int frame, int frames, uint32_t seed) {
+  json j = shaft_scene(w, h, false, true, seed);
+  const double x = -1.5 + 3.0 * frame / std::max(1, frames - 1);
+  j["camera"]["position"] = {x, 1, 0};
+  j["camera"]["target"] = {x, 1.2, 1};
+  return j;
+}
+
+// The volume instance on a sequence against a reference sequence, per seed: mean relMSE of the denoised
+// volume term over frames 2.. (the first have no history yet) and the temporal stability of the sequence.
+struct SequenceFigures {
+  std::vector<double> relmse, change_relmse;
+};
+
+json summary_ratio(const std::vector<double>& num, const std::vector<double>& den) {
+  // The ratio of the means over seeds, and the spread of the per-seed ratios.
+  std::vector<double> r;
+  for (size_t i = 0; i < num.size(); ++i) r.push_back(num[i] / den[i]);
+  const double mn = std::accumulate(num.begin(), num.end(), 0.0) / double(num.size());
+  const double md = std::accumulate(den.begin(), den.end(), 0.0) / double(den.size());
+  return {{"ratio_of_means", mn / md},
+          {"min", *std::min_element(r.begin(), r.end())},
+          {"max", *std::max_element(r.begin(), r.end())}};
+}
+
+// Motion (virtual points forward, backward baseline, surface) and the volume instance's geometry (virtual
+// points, surface) on a scene generator, over seeds; the volume instance's time and memory next to the
+// surface instance's on the first run.
+json temporal(gpu::Context& ctx, const GuidingBenchOptions& o, const std::string& name,
+              const std::function<json(int, int, int, int, uint32_t)>& scene_at, json* cost_out) {
   const int w = o.width, h = o.height;
-  auto frame_scene = [&](int f, bool denoise, const std::string& motion, uint32_t seed) {
-    json j = shaft_scene(w, h, false, true, seed);
-    double x = -1.5 + 3.0 * f / std::max(1, o.frames - 1);
-    j["camera"]["position"] = {x, 1, 0};
-    j["camera"]["target"] = {x, 1.2, 1};
-    j["denoise"] = {
-        {"surface", {{"enabled", denoise}}}, {"volume", {{"enabled", denoise}}}, {"volume_motion", motion}};
+  auto frame_scene = [&](int f, bool denoise, const std::string& motion, const std::string& geometry,
+                         uint32_t seed) {
+    json j = scene_at(w, h, f, o.frames, seed);
+    j["denoise"] = {{"surface", {{"enabled", denoise}}},
+                    {"volume", {{"enabled", denoise}, {"geometry", geometry}}},
+                    {"volume_motion", motion}};
     if (!denoise) j["guiding"]["enabled"] = false;
     return make(j);
   };
-  std::vector<render::Image> refs;
+  std::vector<std::vector<float>> refs;
   {
     std::unique_ptr<render::Renderer> r;
     for (int f = 0; f < o.frames; ++f) {
-      scene::Scene s = frame_scene(f, false, "surface", 9000 + uint32_t(f));
+      scene::Scene s = frame_scene(f, false, "surface", "surface", 9000 + uint32_t(f));
       if (!r)
         r = std::make_unique<render::Renderer>(ctx, s);
       else
         r->set_scene(s, uint32_t(f));
       r->add_samples(o.spp * o.reference_factor);
-      refs.push_back(r->resolve());
+      const render::Image img = r->resolve();
+      std::vector<float> v(size_t(w) * h * 3);
+      for (size_t p = 0; p < size_t(w) * h; ++p)
+        for (int c = 0; c < 3; ++c) v[p * 3 + c] = img.data[p * glsl::OUT_STRIDE + glsl::OUT_VOL + c];
+      refs.push_back(std::move(v));
     }
   }
-  json out = json::object();
-  std::map<std::string, double> mean_err;
-  for (const std::string motion : {"virtual_points", "surface"}) {
-    std::unique_ptr<render::Renderer> r;
-    std::vector<double> errors;
-    scene::Scene prev;
-    for (int f = 0; f < o.frames; ++f) {
-      scene::Scene s = frame_scene(f, true, motion, uint32_t(f + 1));
-      if (!r)
-        r = std::make_unique<render::Renderer>(ctx, s);
-      else
-        r->set_scene(s, uint32_t(f), &prev);
-      prev = s;
-      r->add_samples(o.sequence_spp);
-      render::Image img = r->resolve();
-      // The first frames have no history yet; the error that motion vectors change is the steady one.
-      if (f >= 2) errors.push_back(eval::relmse(denoised_volume_of(img), volume_of(refs[size_t(f)])));
-    }
-    mean_err[motion] = std::accumulate(errors.begin(), errors.end(), 0.0) / double(errors.size());
-    out[motion] = {{"relmse_per_frame", errors}, {"relmse_mean", mean_err[motion]}};
-    if (motion == "virtual_points") {
-      // Per frame medians of each instance's passes, and its memory by ledger category.
-      json cost = json::object();
-      for (const std::string inst : {"surface", "volume"}) {
-        double ms = 0;
-        for (const auto& [pass, st] : r->pass_stats())
-          if (pass.rfind("svgf." + inst + ".", 0) == 0) ms += render::median(st.ms);
-        uint64_t bytes = 0;
-        for (const auto& [cat, b] : ctx.ledger().per_category())
-          if (cat.rfind("svgf." + inst + " ", 0) == 0) bytes += b;
-        cost[inst] = {{"ms_per_frame", ms}, {"bytes", bytes}};
+  const std::vector<std::pair<std::string, std::string>> runs = {{"virtual_points", "virtual_points"},
+                                                                 {"backward", "virtual_points"},
+                                                                 {"surface", "virtual_points"},
+                                                                 {"virtual_points", "surface"}};
+  std::map<std::pair<std::string, std::string>, SequenceFigures> fig;
+  for (const auto& [motion, geometry] : runs)
+    for (int seed = 1; seed <= std::max(1, o.seeds); ++seed) {
+      std::unique_ptr<render::Renderer> r;
+      std::vector<std::vector<float>> seq;
+      scene::Scene prev;
+      double err = 0;
+      int n = 0;
+      for (int f = 0; f < o.frames; ++f) {
+        scene::Scene s = frame_scene(f, true, motion, geometry, uint32_t(seed * 100 + f + 1));
+        if (!r)
+          r = std::make_unique<render::Renderer>(ctx, s);
+        else
+          r->set_scene(s, uint32_t(f), &prev);
+        prev = s;
+        r->add_samples(o.sequence_spp);
+        render::Image img = r->resolve();
+        seq.emplace_back(&img.volume_denoised->colour[0].x,
+                         &img.volume_denoised->colour[0].x + size_t(w) * h * 3);
+        const eval::Channels ref{refs[size_t(f)].data(), size_t(w) * h, 3, 0};
+        if (f >= 2) err += eval::relmse(denoised_volume_of(img), ref), ++n;
       }
-      cost["volume_over_surface_time"] =
-          cost["volume"]["ms_per_frame"].get<double>() / cost["surface"]["ms_per_frame"].get<double>();
-      double vm = 0;
-      for (const auto& [pass, st] : r->pass_stats())
-        if (pass == "volume_motion" || pass == "guide_reproject") vm += render::median(st.ms);
-      cost["volume_motion_and_guide_reuse_ms_per_frame"] = vm;
-      out["instances"] = cost;
+      std::vector<eval::Channels> a, b;
+      for (int f = 0; f < o.frames; ++f) {
+        a.push_back({seq[size_t(f)].data(), size_t(w) * h, 3, 0});
+        b.push_back({refs[size_t(f)].data(), size_t(w) * h, 3, 0});
+      }
+      auto& fg = fig[{motion, geometry}];
+      fg.relmse.push_back(err / n);
+      fg.change_relmse.push_back(eval::temporal(a, b).relmse_of_change);
+      if (cost_out && motion == "virtual_points" && geometry == "virtual_points" && seed == 1) {
+        // Per frame medians of each instance's passes, and its memory by ledger category.
+        json cost = json::object();
+        for (const std::string inst : {"surface", "volume"}) {
+          double ms = 0;
+          for (const auto& [pass, st] : r->pass_stats())
+            if (pass.rfind("svgf." + inst + ".", 0) == 0) ms += render::median(st.ms);
+          uint64_t bytes = 0;
+          for (const auto& [cat, by] : ctx.ledger().per_category())
+            if (cat.rfind("svgf." + inst + " ", 0) == 0) bytes += by;
+          cost[inst] = {{"ms_per_frame", ms}, {"bytes", bytes}};
+        }
+        cost["volume_over_surface_time"] =
+            cost["volume"]["ms_per_frame"].get<double>() / cost["surface"]["ms_per_frame"].get<double>();
+        double vm = 0;
+        for (const auto& [pass, st] : r->pass_stats())
+          if (pass == "volume_motion" || pass == "guide_reproject") vm += render::median(st.ms);
+        cost["volume_motion_and_guide_reuse_ms_per_frame"] = vm;
+        *cost_out = cost;
+      }
     }
-  }
-  out["frames"] = o.frames;
-  out["sequence_spp"] = o.sequence_spp;
-  out["reference_spp"] = o.spp * o.reference_factor;
-  out["relmse_ratio_surface_motion_over_virtual_points"] = mean_err["surface"] / mean_err["virtual_points"];
+  json out = {{"scene", name},
+              {"frames", o.frames},
+              {"sequence_spp", o.sequence_spp},
+              {"reference_spp", o.spp * o.reference_factor},
+              {"seeds", std::max(1, o.seeds)}};
+  json runs_json = json::object();
+  for (const auto& [key, fg] : fig)
+    runs_json[fmt::format("motion {}, geometry {}", key.first, key.second)] = {
+        {"relmse", summary(fg.relmse)}, {"temporal_relmse_of_change", summary(fg.change_relmse)}};
+  out["runs"] = runs_json;
+  const auto& vp = fig[{"virtual_points", "virtual_points"}];
+  out["relmse_surface_motion_over_virtual_points"] =
+      summary_ratio(fig[{"surface", "virtual_points"}].relmse, vp.relmse);
+  out["relmse_backward_over_virtual_points"] =
+      summary_ratio(fig[{"backward", "virtual_points"}].relmse, vp.relmse);
+  out["relmse_surface_geometry_over_virtual_points"] =
+      summary_ratio(fig[{"virtual_points", "surface"}].relmse, vp.relmse);
+  out["change_surface_geometry_over_virtual_points"] =
+      summary_ratio(fig[{"virtual_points", "surface"}].change_relmse, vp.change_relmse);
   return out;
 }
 
 }  // namespace
 
 json bench_guiding(gpu::Context& ctx, const GuidingBenchOptions& o) {
+  json cost;
+  json pan = temporal(ctx, o, "panning shaft", panning_scene, &cost);
+  json occ = temporal(ctx, o, "shaft before a moving occluder", occluder_scene, nullptr);
+  pan["instances"] = cost;
   return {{"equal_time", {equal_time(ctx, o, false), equal_time(ctx, o, true)}},
-          {"volume_denoiser", temporal(ctx, o)}};
+          {"volume_denoiser", pan},
+          {"volume_occluder", occ}};
 }
 
 void print_guiding(const json& j) {
@@ -205,13 +286,23 @@ void print_guiding(const json& j) {
                e["guided_over_unguided_time_per_sample"].get<double>(),
                e["relmse_ratio_of_means"].get<double>(), r["min"].get<double>(), r["max"].get<double>());
   }
-  const auto& v = j["volume_denoiser"];
-  fmt::print(
-      "volume instance on a panning shaft ({} frames, {} spp): relMSE surface motion / virtual points "
-      "{:.2f}\n",
-      v["frames"].get<int>(), v["sequence_spp"].get<int>(),
-      v["relmse_ratio_surface_motion_over_virtual_points"].get<double>());
-  const auto& c = v["instances"];
+  for (const char* key : {"volume_denoiser", "volume_occluder"}) {
+    const auto& v = j[key];
+    fmt::print(
+        "volume instance, {} ({} frames of {} spp, {} seeds): denoised volume relMSE (frames 2..) and "
+        "temporal relMSE of the change, means over seeds\n",
+        v["scene"].get<std::string>(), v["frames"].get<int>(), v["sequence_spp"].get<int>(),
+        v["seeds"].get<int>());
+    for (const auto& [run, f] : v["runs"].items())
+      fmt::print("  {:<44}{:>10.4f}{:>10.4f}\n", run, f["relmse"]["mean"].get<double>(),
+                 f["temporal_relmse_of_change"]["mean"].get<double>());
+    for (const char* r :
+         {"relmse_surface_motion_over_virtual_points", "relmse_backward_over_virtual_points",
+          "relmse_surface_geometry_over_virtual_points", "change_surface_geometry_over_virtual_points"})
+      fmt::print("  {:<44}{:>10.3f} ({:.3f}..{:.3f} per seed)\n", r, v[r]["ratio_of_means"].get<double>(),
+                 v[r]["min"].get<double>(), v[r]["max"].get<double>());
+  }
+  const auto& c = j["volume_denoiser"]["instances"];
   fmt::print("  svgf.volume / svgf.surface time {:.2f}; memory {:.2f} MB / {:.2f} MB\n",
              c["volume_over_surface_time"].get<double>(), c["volume"]["bytes"].get<double>() / 1e6,
              c["surface"]["bytes"].get<double>() / 1e6);

@@ -22,6 +22,9 @@ struct SvgfParams {
   float firefly_bias = 0.2f, firefly_ipr = 50.f;
   float firefly_low = 0.25f, firefly_up = 0.90f;
   float firefly_max = 6.0e4f;  // hard clamp of the input luminance
+  // What the reprojection tests and the edge-stopping terms compare: the surface G-buffer, or the signal's
+  // own virtual points (their depth and its screen-space gradient; no normals), docs/denoising.md.
+  std::string geometry = "surface";  // surface | virtual_points
   // Reprojection.
   float normal_threshold = 37.f;    // degrees
   float depth_tolerance = 0.0264f;  // tau, relative
@@ -32,7 +35,10 @@ struct SvgfParams {
   float spatial_bias = 8.f, spatial_falloff = 3.f;
   // Filter.
   int iterations = 5;
-  std::string kernel = "5x5";  // 5x5 | subsampled
+  std::string kernel = "5x5";            // 5x5 | subsampled
+  std::string normalization = "gather";  // gather (SVGF) | splat (energy-conserving)
+  // What sigma steers the luminance term: one frame's sample (SVGF) or the accumulated estimate's.
+  std::string filter_sigma = "sample";  // sample (SVGF) | estimate
   float phi_luminance = 3.f;
   float phi_depth = 40.f;
   float phi_normal = 30.f;  // degrees
@@ -46,28 +52,32 @@ struct SvgfParams {
 // The volume instance's starting parameters (docs/denoising.md, the table of starting parameters).
 inline SvgfParams volume_defaults() {
   SvgfParams p;
-  p.accumulate = 0.902f;
-  p.adapt_ipr = 15.f;
+  p.geometry = "virtual_points";
+  p.filter_sigma = "estimate";
+  p.normalization = "splat";
+  p.accumulate = 0.8f;
+  p.adapt_ipr = 3.f;
   p.adapt_low = 0.056f;
   p.adapt_up = 0.904f;
   p.firefly_up = 0.959f;
   p.normal_threshold = 180.f;
   p.depth_tolerance = 0.284f;
-  p.phi_luminance = 4.f;
+  p.phi_luminance = 2.5f;
   p.phi_depth = 3968.f;
   p.phi_normal = 180.f;
   p.zbias_normal = 0.f;
   p.variance_normal = 180.f;
   p.variance_depth = 200.f;
-  p.taa_blend = 0.804f;
+  p.taa_blend = 0.65f;
   return p;
 }
 
 struct DenoiseSettings {
   SvgfParams surface;
   SvgfParams volume = volume_defaults();
-  // Which motion vectors reproject the volume instance's history: the virtual points' (volume motion) or
-  // the surface G-buffer's (an ablation).
+  // Which motion vectors reproject the volume instance's history: the virtual points' projected forward
+  // (volume motion), each pixel's own virtual point reprojected backward with the camera's motion (the
+  // baseline), or the surface G-buffer's (an ablation).
   std::string volume_motion = "virtual_points";
 };
 
@@ -92,6 +102,10 @@ void reflect(V& v, SvgfParams& p) {
   v.field("firefly_low", p.firefly_low, Range{0, 1}, "lower firefly percentile");
   v.field("firefly_up", p.firefly_up, Range{0, 1}, "upper firefly percentile");
   v.field("firefly_max", p.firefly_max, Range{0, 6.5e4}, "hard clamp of the input luminance");
+  v.field(
+      "geometry", p.geometry, Choices{"surface", "virtual_points"},
+      "what reprojection tests and edge stopping compare: the surface G-buffer's depth and normals, or the "
+      "virtual point depth of the signal (and its gradient; volume instance only)");
   v.field("normal_threshold", p.normal_threshold, Range{0, 180}, "reprojection: max normal change, degrees");
   v.field("depth_tolerance", p.depth_tolerance, Range::at_least(0),
           "reprojection: |z - z'| <= tolerance * max(z, z')");
@@ -102,6 +116,16 @@ void reflect(V& v, SvgfParams& p) {
   v.field("spatial_falloff", p.spatial_falloff, Range::at_least(0), "f in beta = clamp(b / n^f, 0, 1)");
   v.field("iterations", p.iterations, Range{0, 10}, "filter iterations (gap 2^i)");
   v.field("kernel", p.kernel, Choices{"5x5", "subsampled"}, "5x5 a-trous or the 6-tap subsampled pattern");
+  v.field(
+      "normalization", p.normalization, Choices{"gather", "splat"},
+      "filter normalization (adaptive mode): gather divides each output by its weights' sum (SVGF); splat "
+      "divides each input by the sum of the symmetric weights it gives away, which conserves the "
+      "signal's sum exactly (one more pass per iteration)");
+  v.field(
+      "filter_sigma", p.filter_sigma, Choices{"sample", "estimate"},
+      "adaptive mode: the luminance term's sigma is that of one frame's sample (SVGF) or of the accumulated "
+      "estimate (the sample variance over the frames the colour averages), which stops at real edges once "
+      "the history is long");
   v.field("phi_luminance", p.phi_luminance, Range::at_least(0), "luminance edge-stopping scale");
   v.field("phi_depth", p.phi_depth, Range::at_least(0), "depth edge-stopping scale");
   v.field("phi_normal", p.phi_normal, Range{0, 180}, "normal edge-stopping angle, degrees");
@@ -122,12 +146,21 @@ inline void validate(SvgfParams& p, const reflection::Where& w) {
     w.fail("firefly_up", fmt::format("must be >= firefly_low ({}), got {}", p.firefly_low, p.firefly_up));
 }
 
+inline void validate(DenoiseSettings& d, const reflection::Where& w) {
+  if (d.surface.geometry != "surface")
+    w.fail("surface.geometry",
+           fmt::format("the surface instance has no virtual points; only \"surface\" is valid, got \"{}\"",
+                       d.surface.geometry));
+}
+
 template <class V>
 void reflect(V& v, DenoiseSettings& d) {
   v.field("surface", d.surface, "the surface instance (demodulated surface signal, surface G-buffer)");
   v.field("volume", d.volume, "the volume instance (light shafts; normal rejection off, weak depth terms)");
-  v.field("volume_motion", d.volume_motion, reflection::Choices{"virtual_points", "surface"},
-          "motion vectors of the volume instance: the virtual points' or the surface G-buffer's");
+  v.field("volume_motion", d.volume_motion, reflection::Choices{"virtual_points", "backward", "surface"},
+          "motion vectors of the volume instance: the virtual points projected forward, each pixel's own "
+          "virtual point reprojected into the previous camera (camera motion only, no forward projection), or "
+          "the surface G-buffer's");
 }
 
 }  // namespace haze::denoise

@@ -30,11 +30,14 @@ glsl::SvgfGpuParams gpu_params(const SvgfParams& p, uint32_t W, uint32_t H, bool
   g.filter_phi = glm::vec4(p.phi_luminance, p.phi_depth, std::min(cos_deg(p.phi_normal), 0.9999f), 1e-4f);
   g.filter_fade = glm::vec4(p.zbias_normal, p.zbias_depth, 0, 0);
   g.taa = glm::vec4(p.taa_blend, p.taa_clamp == "variance" ? 1.f : 0.f, p.taa_gamma, 0);
+  g.variance_scale =
+      glm::vec4(p.filter_sigma == "estimate" ? 1.f : 0.f, std::max(1.f - p.accumulate, 1e-3f), 0, 0);
   if (p.mode == "classic") {
     // Schied et al. 2017 as in Falcor's SVGF: alpha 0.2, phi_l 4, phi_z 1, normal exponent 128.
     g.accumulate = glm::vec4(0.8f, 32.f, 0, 0);
     g.filter_phi = glm::vec4(4.f, 1.f, 128.f, 1e-4f);
     g.filter_fade = glm::vec4(0);
+    g.variance_scale = glm::vec4(0);
   }
   return g;
 }
@@ -63,6 +66,24 @@ Svgf::Svgf(gpu::Context& ctx, std::string name, const SvgfParams& params, uint32
   set_params(params);
 }
 
+void Svgf::make_geometry_buffers() {
+  if (!own_geometry()) {
+    geo_ = gpu::Buffer();
+    prev_geo_ = gpu::Buffer();
+    return;
+  }
+  if (geo_.valid()) return;
+  const uint64_t pixels = uint64_t(width_) * height_;
+  geo_ = gpu::Buffer(ctx_, fmt::format("svgf.{} geometry", name_),
+                     fmt::format("svgf.{} per-frame temporaries", name_), pixels * 8,
+                     "f32 virtual point depth, 2 x f16 its gradient");
+  prev_geo_ =
+      gpu::Buffer(ctx_, fmt::format("svgf.{} previous geometry", name_),
+                  fmt::format("svgf.{} previous-frame data", name_), pixels * 4, "f32 virtual point depth");
+  geo_.fill_zero();
+  prev_geo_.fill_zero();
+}
+
 Svgf::~Svgf() = default;
 
 void Svgf::create_kernels() {
@@ -75,8 +96,15 @@ void Svgf::create_kernels() {
     d.buffer("params", sizeof(glsl::SvgfGpuParams));
     return d;
   };
-  // The G-buffer layers of this frame (and of the previous one).
+  // What the tests and edge stopping compare: the G-buffer layers of this frame (and of the previous one),
+  // or the instance's own geometry.
+  const bool own = own_geometry();
   auto gbuffer = [&](gpu::KernelDecl& d, const char* prefix) {
+    if (own) {
+      if (!d.defined("SVGF_OWN_GEOMETRY"))
+        d.define("SVGF_OWN_GEOMETRY").buffer("geo", pixels * 8).buffer("prev_geo", pixels * 4);
+      return;
+    }
     for (const char* layer : {"g_depth", "g_normal", "g_albedo"})
       d.buffer(std::string(prefix) + layer, pixels * 16, 16);
   };
@@ -86,6 +114,14 @@ void Svgf::create_kernels() {
     pipeline_ms_ += k.setup_ms();
     return k;
   };
+  for (uint32_t step = 0; step < 2; ++step) {
+    geometry_pass_[step] = gpu::Kernel();
+    if (!own) continue;
+    gpu::KernelDecl g = decl("geometry");
+    gbuffer(g, "");
+    g.buffer("depth", pixels * 4);
+    geometry_pass_[step] = make(std::move(g.specialize({step})));
+  }
   gpu::KernelDecl p = decl("percentiles");
   p.buffer("colour", pixels * 12).buffer("percentiles", blocks * 16);
   percentiles_pass_ = make(std::move(p));
@@ -103,18 +139,55 @@ void Svgf::create_kernels() {
   variance_pass_ = make(std::move(v.specialize({classic})));
   gpu::KernelDecl f = decl("filter");
   gbuffer(f, "");
-  f.buffer("in_colour", half4).buffer("out_colour", half4);
-  filter_pass_ = make(std::move(f.push(4).specialize({classic, subsampled})));
-  gpu::KernelDecl t = decl("taa");
-  gbuffer(t, "");
-  t.buffer("emission", pixels * 12);
+  f.buffer("in_colour", half4).buffer("out_colour", half4).push(4);
+  weight_sum_pass_ = gpu::Kernel();
+  if (splat()) {
+    f.define("SVGF_SPLAT").buffer("weight_sum", pixels * 4);
+    gpu::KernelDecl w = f;
+    weight_sum_pass_ = make(std::move(w.specialize({classic, subsampled, 1})));
+  }
+  filter_pass_ = make(std::move(f.specialize({classic, subsampled, 0})));
+  taa_pass_ = make(taa_decl());
+}
+
+gpu::KernelDecl Svgf::taa_decl() const {
+  const uint64_t pixels = uint64_t(width_) * height_, half4 = pixels * 8;
+  gpu::KernelDecl t("denoise/taa.comp");
+  t.buffer("params", sizeof(glsl::SvgfGpuParams));
+  if (own_geometry())
+    t.define("SVGF_OWN_GEOMETRY").buffer("geo", pixels * 8).buffer("prev_geo", pixels * 4);
+  else
+    for (const char* layer : {"g_depth", "g_normal", "g_albedo"}) t.buffer(layer, pixels * 16, 16);
+  if (emission_) t.define("SVGF_EMISSION").buffer("emission", pixels * 12);
   t.buffer("motion", pixels * 8).buffer("filtered", half4).buffer("prev_output", half4).buffer("outp", half4);
-  taa_pass_ = make(std::move(t.push(4)));
+  return std::move(t.push(4));
+}
+
+void Svgf::set_emission(bool emission) {
+  if (emission && !remodulate_)
+    throw gpu::Error(fmt::format("svgf.{}: an emission input needs a remodulating instance", name_));
+  if (emission == emission_) return;
+  emission_ = emission;
+  if (taa_pass_.valid()) {
+    gpu::Kernel k(ctx_, taa_decl());
+    pipeline_ms_ += k.setup_ms();
+    taa_pass_ = std::move(k);
+  }
 }
 
 void Svgf::set_params(const SvgfParams& params) {
-  bool rebuild = !accumulate_pass_.valid() || params.mode != params_.mode || params.kernel != params_.kernel;
+  bool rebuild = !accumulate_pass_.valid() || params.mode != params_.mode ||
+                 params.kernel != params_.kernel || params.geometry != params_.geometry ||
+                 params.normalization != params_.normalization;
+  if (params.geometry != params_.geometry) has_history_ = false;  // the history's tests change meaning
   params_ = params;
+  make_geometry_buffers();
+  if (!splat())
+    weight_sum_ = gpu::Buffer();
+  else if (!weight_sum_.valid())
+    weight_sum_ = gpu::Buffer(ctx_, fmt::format("svgf.{} weight sums", name_),
+                              fmt::format("svgf.{} per-frame temporaries", name_),
+                              uint64_t(width_) * height_ * 4, "f32 per pixel");
   const glm::uvec4 layout = gpu_.layout_in, flags = gpu_.flags;
   gpu_ = gpu_params(params_, width_, height_, remodulate_);
   gpu_.layout_in = layout;
@@ -124,8 +197,10 @@ void Svgf::set_params(const SvgfParams& params) {
 }
 
 void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
-  if (!in.colour || !in.gbuffer || !in.prev_gbuffer || !in.motion)
-    throw gpu::Error(fmt::format("svgf.{}: an input buffer is missing", name_));
+  const bool own = own_geometry();
+  if (!in.colour || !in.motion || (own ? !in.depth : (!in.gbuffer || !in.prev_gbuffer)))
+    throw gpu::Error(fmt::format("svgf.{}: an input buffer is missing (geometry {} needs {})", name_,
+                                 params_.geometry, own ? "a virtual point depth" : "the G-buffers"));
   const uint64_t pixels = uint64_t(width_) * height_;
   auto check = [&](const gpu::Buffer& b, uint32_t stride, uint32_t offset, uint32_t n, const char* what) {
     if (stride < offset + n || b.size() < ((pixels - 1) * stride + offset + n) * 4)
@@ -136,17 +211,22 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
   };
   check(*in.colour, in.colour_stride, in.colour_offset, 3, "colour");
   check(*in.motion, in.motion_stride, in.motion_offset, 2, "motion");
-  if (in.emission && !remodulate_)
-    throw gpu::Error(fmt::format("svgf.{}: an emission input needs a remodulating instance", name_));
+  if (bool(in.emission) != emission_)
+    throw gpu::Error(fmt::format("svgf.{}: {}", name_,
+                                 emission_ ? "set_emission(true) but no emission input"
+                                           : "an emission input without set_emission(true)"));
   if (in.emission) check(*in.emission, in.emission_stride, in.emission_offset, 3, "emission");
+  if (own) check(*in.depth, in.depth_stride, in.depth_offset, 1, "depth");
   // The parameter buffer changes only with set_params() or the inputs' layout.
   const glm::uvec4 layout(in.colour_stride, in.colour_offset, in.motion_stride, in.motion_offset);
   const glm::uvec3 emission =
-      in.emission ? glm::uvec3(in.emission_stride, in.emission_offset, 1) : glm::uvec3(0);
+      in.emission ? glm::uvec3(in.emission_stride, in.emission_offset, 1) : glm::uvec3(0);  // w: unused
+  const glm::uvec4 geometry = own ? glm::uvec4(in.depth_stride, in.depth_offset, 0, 0) : glm::uvec4(0);
   if (gpu_dirty_ || gpu_.layout_in != layout ||
-      glm::uvec3(gpu_.flags.y, gpu_.flags.z, gpu_.flags.w) != emission) {
+      glm::uvec3(gpu_.flags.y, gpu_.flags.z, gpu_.flags.w) != emission || gpu_.geometry != geometry) {
     gpu_.layout_in = layout;
     gpu_.flags = glm::uvec4(gpu_.flags.x, emission);
+    gpu_.geometry = geometry;
     vkCmdUpdateBuffer(cmd, params_buf_.handle(), 0, sizeof(gpu_), &gpu_);
     gpu::compute_barrier(cmd);
     gpu_dirty_ = false;
@@ -154,9 +234,13 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
   // What every pass may read: the parameters, the inputs and the G-buffers.
   gpu::Bindings common;
   common.set("params", params_buf_).set("colour", *in.colour).set("motion", *in.motion);
-  common.set("emission", in.emission ? *in.emission : *in.colour);  // not read when flags.w = 0
-  in.gbuffer->bind(common);
-  in.prev_gbuffer->bind(common);
+  if (in.emission) common.set("emission", *in.emission);
+  if (own) {
+    common.set("geo", geo_).set("prev_geo", prev_geo_).set("depth", *in.depth);
+  } else {
+    in.gbuffer->bind(common);
+    in.prev_gbuffer->bind(common);
+  }
 
   const uint32_t gx = (width_ + 7) / 8, gy = (height_ + 7) / 8;
   auto scope = [&](const char* pass) {
@@ -166,6 +250,11 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
     if (timer) timer->end(cmd);
     gpu::compute_barrier(cmd);
   };
+  if (own) {
+    scope("geometry");
+    geometry_pass_[0].dispatch(cmd, common, nullptr, gx, gy);
+    end();
+  }
   const bool classic = params_.mode == "classic";
   if (!classic) {
     scope("percentiles");
@@ -183,6 +272,12 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
     accumulate_pass_.dispatch(cmd, b, push, gx, gy);
   }
   end();
+  if (own) {
+    // The gradient of the depth accumulation just wrote.
+    scope("geometry_gradient");
+    geometry_pass_[1].dispatch(cmd, common, nullptr, gx, gy);
+    end();
+  }
   scope("variance");
   {
     gpu::Bindings b = common;
@@ -199,6 +294,11 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
     scope(fmt::format("filter{}", i).c_str());
     gpu::Bindings b = common;
     b.set("in_colour", *src).set("out_colour", temp_[dst]);
+    if (weight_sum_pass_.valid()) {
+      b.set("weight_sum", weight_sum_);
+      weight_sum_pass_.dispatch(cmd, b, &i, gx, gy);
+      gpu::compute_barrier(cmd);
+    }
     filter_pass_.dispatch(cmd, b, &i, gx, gy);
     end();
     if (i == 0) {
@@ -224,9 +324,11 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
 }
 
 SvgfResult Svgf::download() const {
-  const size_t pixels = size_t(width_) * height_;
-  std::vector<glm::uvec2> out = taa_.download_vector<glm::uvec2>();
-  std::vector<float> m = moments_.download_vector<float>();
+  return decode(size_t(width_) * height_, taa_.download_vector<glm::uvec2>(),
+                moments_.download_vector<float>());
+}
+
+SvgfResult Svgf::decode(size_t pixels, const std::vector<glm::uvec2>& out, const std::vector<float>& m) {
   SvgfResult r;
   r.colour.resize(pixels);
   r.history.resize(pixels);

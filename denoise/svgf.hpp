@@ -22,7 +22,7 @@ namespace glsl {
 using namespace glm;
 using uint = glm::uint;
 #include "shaders/denoise/svgf_layout.glsl"
-static_assert(sizeof(SvgfGpuParams) == 11 * 16);
+static_assert(sizeof(SvgfGpuParams) == 13 * 16);
 }  // namespace glsl
 
 // What an instance reads. Colour and motion are `stride` floats per pixel with the rgb (xy) at `offset`;
@@ -39,6 +39,11 @@ struct SvgfInputs {
   // bypasses the filters and is added after remodulation.
   const gpu::Buffer* emission = nullptr;
   uint32_t emission_stride = 3, emission_offset = 0;
+  // Instances with geometry "virtual_points" only: the signal's virtual point depth per pixel (distance along
+  // the pixel-centre ray; <= 0 or not finite: none), `depth_stride` floats per pixel, at `depth_offset`.
+  // They read no G-buffer.
+  const gpu::Buffer* depth = nullptr;
+  uint32_t depth_stride = 1, depth_offset = 0;
 };
 
 // Downloaded output: remodulated colour after TAA, the history length, and the variance of the filtered
@@ -57,13 +62,24 @@ class Svgf {
   ~Svgf();
 
   void set_params(const SvgfParams& params);
+  // Whether run() gets an emission input (a remodulating instance in a scene with emissive surfaces): the
+  // TAA pass that adds it back is a permutation of its own, and without it has no emission binding.
+  void set_emission(bool emission);
+  bool emission() const { return emission_; }
   // The next frame starts without history (a cut, a new sequence).
   void reset() { has_history_ = false; }
   // Records the passes of one frame (timer scopes "svgf.<name>.<pass>" when a timer is given).
   void run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in);
   SvgfResult download() const;
+  // download() of copies of output() and moments() (a frame's readback).
+  static SvgfResult decode(size_t pixels, const std::vector<glm::uvec2>& output,
+                           const std::vector<float>& moments);
 
-  const gpu::Buffer& output() const { return taa_; }  // half rgb + sigma per pixel (see taa.comp)
+  const gpu::Buffer& output() const { return taa_; }       // half rgb + sigma per pixel (see taa.comp)
+  const gpu::Buffer& moments() const { return moments_; }  // SVGF_MOMENTS_STRIDE floats per pixel
+  // Geometry "virtual_points" only: the virtual point depth accumulated over the history (float bits, then
+  // its gradient: 2 words per pixel, the depth first), as the last run() left it; else nullptr.
+  const gpu::Buffer* geometry_depth() const { return geo_.valid() ? &geo_ : nullptr; }
   uint32_t width() const { return width_; }
   uint32_t height() const { return height_; }
   const std::string& name() const { return name_; }
@@ -76,15 +92,23 @@ class Svgf {
   uint32_t width_, height_;
   bool remodulate_;
   bool has_history_ = false;
+  bool emission_ = false;
   glsl::SvgfGpuParams gpu_{};  // params_ as the shaders read them
   bool gpu_dirty_ = true;      // gpu_ not yet in params_buf_
   uint32_t frame_ = 0;
   // Temporaries: percentiles and two half-float ping-pong buffers. Previous-frame data: the history colour,
-  // the moments (m1, m2, n) and the TAA output.
-  gpu::Buffer params_buf_, percentiles_, temp_[2], history_, moments_, taa_;
-  gpu::Kernel percentiles_pass_, accumulate_pass_, variance_pass_, filter_pass_, taa_pass_;
+  // the moments (m1, m2, n) and the TAA output. With geometry "virtual_points": this frame's depth and
+  // gradient (geo) and the last frame's depth (prev_geo).
+  gpu::Buffer params_buf_, percentiles_, temp_[2], history_, moments_, taa_, geo_, prev_geo_;
+  gpu::Buffer weight_sum_;  // normalization "splat": per pixel the sum of the weights it gives away
+  gpu::Kernel geometry_pass_[2], percentiles_pass_, accumulate_pass_, variance_pass_, filter_pass_, taa_pass_;
+  gpu::Kernel weight_sum_pass_;
+  bool splat() const { return params_.normalization == "splat" && params_.mode != "classic"; }
+  bool own_geometry() const { return params_.geometry == "virtual_points"; }
+  void make_geometry_buffers();
   double pipeline_ms_ = 0;
   void create_kernels();
+  gpu::KernelDecl taa_decl() const;
 };
 
 }  // namespace haze::denoise

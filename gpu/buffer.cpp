@@ -124,8 +124,20 @@ void Buffer::create(Kind kind) {
   ledger_id_ = ctx.ledger().add({name_, category_, format_, allocated_, size_});
 }
 
+Buffer Buffer::host_visible(Context& ctx, std::string name, std::string category, uint64_t bytes,
+                            std::string format) {
+  return Buffer(ctx, std::move(name), std::move(category), bytes, std::move(format), Kind::Staging);
+}
+
 void Buffer::release() noexcept {
   if (!ctx_) return;
+  // A frame in flight may still use it.
+  if (buffer_) {
+    try {
+      ctx_->wait_in_flight();
+    } catch (...) {  // device lost: nothing runs any more
+    }
+  }
   if (ledger_id_) ctx_->ledger().remove(ledger_id_);
   if (mapped_) vkUnmapMemory(ctx_->device(), memory_);
   if (buffer_) vkDestroyBuffer(ctx_->device(), buffer_, nullptr);
@@ -186,34 +198,34 @@ void Buffer::upload(const void* data, uint64_t bytes, uint64_t offset) {
   check_range("upload", bytes, offset);
   if (bytes == 0) return;
   if (mapped_) {
-    std::memcpy(static_cast<char*>(mapped_) + offset, data, bytes);
-    if (!coherent_) {
-      auto range = vk_struct<VkMappedMemoryRange>(VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE);
-      range.memory = memory_;
-      range.size = VK_WHOLE_SIZE;
-      HAZE_VK(vkFlushMappedMemoryRanges(ctx_->device(), 1, &range));
-    }
+    ctx_->wait_in_flight();
+    write_mapped(data, bytes, offset);
     return;
   }
   Buffer staging(*ctx_, "staging for '" + name_ + "'", "staging", bytes, format_, Kind::Staging);
-  staging.upload(data, bytes, 0);
+  staging.write_mapped(data, bytes, 0);  // a new buffer: no frame uses it
   ctx_->submit_and_wait([&](VkCommandBuffer cmd) {
     VkBufferCopy region{0, offset, bytes};
     vkCmdCopyBuffer(cmd, staging.buffer_, buffer_, 1, &region);
   });
 }
 
+void Buffer::write_mapped(const void* data, uint64_t bytes, uint64_t offset) {
+  std::memcpy(static_cast<char*>(mapped_) + offset, data, bytes);
+  if (!coherent_) {
+    auto range = vk_struct<VkMappedMemoryRange>(VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE);
+    range.memory = memory_;
+    range.size = VK_WHOLE_SIZE;
+    HAZE_VK(vkFlushMappedMemoryRanges(ctx_->device(), 1, &range));
+  }
+}
+
 void Buffer::download(void* data, uint64_t bytes, uint64_t offset) const {
   check_range("download", bytes, offset);
   if (bytes == 0) return;
   if (mapped_) {
-    if (!coherent_) {
-      auto range = vk_struct<VkMappedMemoryRange>(VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE);
-      range.memory = memory_;
-      range.size = VK_WHOLE_SIZE;
-      HAZE_VK(vkInvalidateMappedMemoryRanges(ctx_->device(), 1, &range));
-    }
-    std::memcpy(data, static_cast<const char*>(mapped_) + offset, bytes);
+    ctx_->wait_in_flight();
+    read_mapped(data, bytes, offset);
     return;
   }
   Buffer staging(*ctx_, "staging for '" + name_ + "'", "staging", bytes, format_, Kind::Staging);
@@ -221,7 +233,22 @@ void Buffer::download(void* data, uint64_t bytes, uint64_t offset) const {
     VkBufferCopy region{offset, 0, bytes};
     vkCmdCopyBuffer(cmd, buffer_, staging.buffer_, 1, &region);
   });
-  staging.download(data, bytes, 0);
+  staging.read_mapped(data, bytes, 0);
+}
+
+void Buffer::read_mapped(void* data, uint64_t bytes, uint64_t offset) const {
+  check_range("read_mapped", bytes, offset);
+  if (!mapped_) throw Error(fmt::format("read_mapped of buffer '{}', which is not host-mapped", name_));
+  if (bytes == 0) return;
+  {
+    if (!coherent_) {
+      auto range = vk_struct<VkMappedMemoryRange>(VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE);
+      range.memory = memory_;
+      range.size = VK_WHOLE_SIZE;
+      HAZE_VK(vkInvalidateMappedMemoryRanges(ctx_->device(), 1, &range));
+    }
+    std::memcpy(data, static_cast<const char*>(mapped_) + offset, bytes);
+  }
 }
 
 void Buffer::fill_zero() {

@@ -25,9 +25,17 @@ class Buffer {
   Buffer(const Buffer&) = delete;
   Buffer& operator=(const Buffer&) = delete;
 
-  // Blocking transfers (each waits for the queue); ranges are checked against size().
+  // A host-visible buffer for transfers only (a frame's readback): mapped, never staged.
+  static Buffer host_visible(Context& ctx, std::string name, std::string category, uint64_t bytes,
+                             std::string format = "bytes");
+
+  // Blocking transfers (each waits for the queue, and for the frames in flight: Context::wait_in_flight);
+  // ranges are checked against size().
   void upload(const void* data, uint64_t bytes, uint64_t offset = 0);
   void download(void* data, uint64_t bytes, uint64_t offset = 0) const;
+  // Reads a mapped buffer without waiting for anything: for a readback buffer whose frame is known to be
+  // complete (gpu::FrameRing::on_complete) while later frames still run.
+  void read_mapped(void* data, uint64_t bytes, uint64_t offset = 0) const;
   void fill_zero();                     // vkCmdFillBuffer, submitted and waited for
   void fill_zero(VkCommandBuffer cmd);  // recorded only; put a compute_barrier() before the readers
   void fill(VkCommandBuffer cmd, uint32_t value);
@@ -62,6 +70,7 @@ class Buffer {
   void create(Kind kind);
   void release() noexcept;
   void check_range(const char* op, uint64_t bytes, uint64_t offset) const;
+  void write_mapped(const void* data, uint64_t bytes, uint64_t offset);
 
   Context* ctx_ = nullptr;
   VkBuffer buffer_ = VK_NULL_HANDLE;

@@ -88,8 +88,9 @@ bool has_extension(const std::vector<VkExtensionProperties>& list, const char* n
                      [&](const VkExtensionProperties& e) { return std::strcmp(e.extensionName, name) == 0; });
 }
 
-// The first compute family that writes timestamps, else the first compute family, else -1.
-int pick_family(VkPhysicalDevice phys, uint32_t* timestamp_bits) {
+// The first compute family that writes timestamps, else the first compute family, else -1; with
+// `graphics`, only families that also do graphics.
+int pick_family(VkPhysicalDevice phys, uint32_t* timestamp_bits, bool graphics = false) {
   uint32_t n = 0;
   vkGetPhysicalDeviceQueueFamilyProperties(phys, &n, nullptr);
   std::vector<VkQueueFamilyProperties> fams(n);
@@ -97,6 +98,7 @@ int pick_family(VkPhysicalDevice phys, uint32_t* timestamp_bits) {
   int any = -1;
   for (uint32_t i = 0; i < n; ++i) {
     if (!(fams[i].queueFlags & VK_QUEUE_COMPUTE_BIT)) continue;
+    if (graphics && !(fams[i].queueFlags & VK_QUEUE_GRAPHICS_BIT)) continue;
     if (fams[i].timestampValidBits > 0) {
       if (timestamp_bits) *timestamp_bits = fams[i].timestampValidBits;
       return static_cast<int>(i);
@@ -314,8 +316,15 @@ std::vector<std::string> Context::validation_log() const {
   return validation_log_;
 }
 
+void Context::take_validation_messages(const Context& helper) {
+  const std::vector<std::string> log = helper.validation_log();
+  std::lock_guard lock(log_mutex_);
+  validation_count_.fetch_add(helper.validation_messages());
+  validation_log_.insert(validation_log_.end(), log.begin(), log.end());
+}
+
 Context::Context(const ContextOptions& options)
-    : shaders_(options.shader_cache), kernels_(std::make_unique<KernelCache>(*this)) {
+    : options_(options), shaders_(options.shader_cache), kernels_(std::make_unique<KernelCache>(*this)) {
   try {
     std::string venv = lower(env("HAZE_VALIDATION"));
     bool sync = venv == "sync";
@@ -354,6 +363,14 @@ Context::Context(const ContextOptions& options)
         next = &vfeatures;
       }
     }
+    for (const auto& e : options.instance_extensions) {
+      if (!instance_extension_present(nullptr, e.c_str()))
+        throw Error(
+            fmt::format("the Vulkan instance lacks {}, which a window needs: install the loader's "
+                        "window-system support (scripts/setup.sh)",
+                        e));
+      exts.push_back(e.c_str());
+    }
     instance_ = create_instance(layers, exts, next);
     if (validation) {
       auto create = reinterpret_cast<PFN_vkCreateDebugUtilsMessengerEXT>(
@@ -374,7 +391,13 @@ Context::Context(const ContextOptions& options)
     driver_ = chosen.driver;
     driver_.pNext = nullptr;
     name_ = props_.deviceName;
-    family_ = static_cast<uint32_t>(pick_family(physical_, &timestamp_bits_));
+    const int family = pick_family(physical_, &timestamp_bits_, options.graphics);
+    if (family < 0)
+      throw Error(
+          fmt::format("'{}' has no queue that does both compute and graphics, which the viewer needs; "
+                      "pick another device with --device",
+                      name_));
+    family_ = static_cast<uint32_t>(family);
     vkGetPhysicalDeviceMemoryProperties(physical_, &memory_);
 
     auto subgroup =
@@ -455,6 +478,12 @@ Context::Context(const ContextOptions& options)
 
     std::vector<const char*> dev_exts = {VK_KHR_PUSH_DESCRIPTOR_EXTENSION_NAME};
     if (atomic_float) dev_exts.push_back(VK_EXT_SHADER_ATOMIC_FLOAT_EXTENSION_NAME);
+    for (const auto& e : options.device_extensions) {
+      if (!has_extension(exts_dev, e.c_str()))
+        throw Error(
+            fmt::format("'{}' lacks {}, which a window needs; pick another device with --device", name_, e));
+      dev_exts.push_back(e.c_str());
+    }
     float priority = 1.0f;
     auto qinfo = vk_struct<VkDeviceQueueCreateInfo>(VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO);
     qinfo.queueFamilyIndex = family_;
@@ -644,6 +673,37 @@ void Context::submit_and_wait(const std::function<void(VkCommandBuffer)>& record
   submit.pCommandBuffers = &cmd_;
   HAZE_VK(vkQueueSubmit(queue_, 1, &submit, fence_));
   HAZE_VK(vkWaitForFences(device_, 1, &fence_, VK_TRUE, UINT64_MAX));
+}
+
+void Context::submit(const VkSubmitInfo& info, VkFence fence) {
+  std::lock_guard lock(submit_mutex_);
+  HAZE_VK(vkQueueSubmit(queue_, 1, &info, fence));
+}
+
+VkResult Context::present(const VkPresentInfoKHR& info) {
+  std::lock_guard lock(submit_mutex_);
+  return vkQueuePresentKHR(queue_, &info);
+}
+
+void Context::track_in_flight(VkFence fence) {
+  std::lock_guard lock(in_flight_mutex_);
+  in_flight_.push_back(fence);
+}
+
+void Context::untrack_in_flight(VkFence fence) {
+  std::lock_guard lock(in_flight_mutex_);
+  in_flight_.erase(std::remove(in_flight_.begin(), in_flight_.end(), fence), in_flight_.end());
+}
+
+void Context::wait_in_flight() {
+  std::lock_guard lock(in_flight_mutex_);
+  bool waited = false;
+  for (VkFence f : in_flight_) {
+    if (vkGetFenceStatus(device_, f) == VK_SUCCESS) continue;
+    HAZE_VK(vkWaitForFences(device_, 1, &f, VK_TRUE, UINT64_MAX));
+    waited = true;
+  }
+  if (waited) host_waits_.fetch_add(1);
 }
 
 std::vector<nlohmann::json> list_devices() {

@@ -28,6 +28,12 @@ struct ContextOptions {
   std::string pipeline_cache;  // VkPipelineCache file to load and save ("" = none)
   bool force_staging = false;  // tests: move data through staging buffers even when memory is host-visible
   std::string shader_cache;    // SPIR-V cache folder of shaders() ("" = ShaderCompiler::default_cache_dir())
+  // What a window needs (haze view): the instance extensions of its surface (VK_KHR_surface and the
+  // platform's), device extensions (VK_KHR_swapchain), and a queue family that also does graphics (the UI
+  // draws with a render pass). A device without them is an error naming what it lacks.
+  std::vector<std::string> instance_extensions;
+  std::vector<std::string> device_extensions;
+  bool graphics = false;
 };
 
 // Optional device capabilities, each enabled when the device has it.
@@ -83,6 +89,10 @@ class Context {
   bool validation_enabled() const { return messenger_ != VK_NULL_HANDLE; }
   uint64_t validation_messages() const { return validation_count_.load(); }  // warnings + errors
   std::vector<std::string> validation_log() const;
+  // Counts another context's messages as this one's (a helper context this one made).
+  void take_validation_messages(const Context& helper);
+  // What this context was made with (a helper context on the same device is made with the same).
+  const ContextOptions& options() const { return options_; }
 
   VkPipelineCache pipeline_cache() const { return pipeline_cache_; }
   void save_pipeline_cache() const;  // atomically (tmp + rename); no-op without a path
@@ -90,6 +100,19 @@ class Context {
   // Records with `record`, submits on the queue and waits. Reuses one command buffer; thread-safe
   // (submissions are serialized); calling it from inside `record` throws.
   void submit_and_wait(const std::function<void(VkCommandBuffer)>& record);
+  // Submits one batch and presents, each under the queue's lock (a queue is externally synchronized, and
+  // submit_and_wait may run on another thread).
+  void submit(const VkSubmitInfo& info, VkFence fence);
+  VkResult present(const VkPresentInfoKHR& info);
+
+  // Submissions the host does not wait for (gpu::FrameRing) register their fence while they run. Every
+  // host access to device memory that one of them may use (Buffer upload, download and destruction, Image
+  // destruction) first waits for them all: correct whatever the caller does, and counted, so a frame loop
+  // can show where it stalls (host_waits()).
+  void track_in_flight(VkFence fence);
+  void untrack_in_flight(VkFence fence);
+  void wait_in_flight();
+  uint64_t host_waits() const { return host_waits_.load(); }  // wait_in_flight() calls that had to wait
 
   // Names an object in validation messages (no-op without validation).
   void set_object_name(VkObjectType type, uint64_t handle, const std::string& name) const;
@@ -105,6 +128,7 @@ class Context {
                                                        const VkDebugUtilsMessengerCallbackDataEXT* data,
                                                        void* user);
 
+  ContextOptions options_;
   VkInstance instance_ = VK_NULL_HANDLE;
   VkDebugUtilsMessengerEXT messenger_ = VK_NULL_HANDLE;
   VkPhysicalDevice physical_ = VK_NULL_HANDLE;
@@ -131,6 +155,10 @@ class Context {
   VkCommandPool pool_ = VK_NULL_HANDLE;
   VkCommandBuffer cmd_ = VK_NULL_HANDLE;
   VkFence fence_ = VK_NULL_HANDLE;
+
+  std::mutex in_flight_mutex_;
+  std::vector<VkFence> in_flight_;
+  std::atomic<uint64_t> host_waits_{0};
 
   MemoryLedger ledger_;
   ShaderCompiler shaders_;

@@ -5,6 +5,7 @@
 #include "gpu/buffer.hpp"
 #include "gpu/context.hpp"
 #include "gpu/error.hpp"
+#include "gpu/frames.hpp"
 #include "gpu/image.hpp"
 #include "gpu/kernel.hpp"
 #include "gpu/ledger.hpp"

@@ -229,6 +229,12 @@ void Image::create() {
 
 void Image::release() noexcept {
   if (!ctx_) return;
+  if (image_) {
+    try {
+      ctx_->wait_in_flight();  // a frame in flight may still use it
+    } catch (...) {            // device lost: nothing runs any more
+    }
+  }
   if (ledger_id_) ctx_->ledger().remove(ledger_id_);
   if (view_) vkDestroyImageView(ctx_->device(), view_, nullptr);
   if (image_) vkDestroyImage(ctx_->device(), image_, nullptr);

@@ -8,12 +8,15 @@
 
 #include <vulkan/vulkan.h>
 
+#include <condition_variable>
 #include <cstdint>
+#include <exception>
 #include <map>
 #include <memory>
 #include <mutex>
 #include <string>
 #include <string_view>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -95,7 +98,8 @@ class Kernel {
  public:
   Kernel() = default;
   // Compiles the permutation (or takes it from the shader cache) and creates the pipeline, unless the
-  // context already holds one for the same pipeline_key().
+  // context already holds one for the same pipeline_key(). With the context's kernel cache in deferred mode
+  // a missing pipeline is compiled in the background instead, and the kernel stays pending (not valid()).
   Kernel(Context& ctx, KernelDecl decl);
 
   // Binds every declared binding from `b` (checked: present, right kind, large enough, whole elements),
@@ -104,8 +108,9 @@ class Kernel {
                 uint32_t gz = 1) const;
 
   bool valid() const { return pipeline_ != nullptr; }
+  bool pending() const { return pending_; }  // deferred: still compiling
   const KernelDecl& decl() const { return decl_; }
-  const ComputePipeline& pipeline() const { return *pipeline_; }
+  const ComputePipeline& pipeline() const;
   // Wall time this construction spent on compiling and creating the pipeline (0 when the context had it).
   double setup_ms() const { return setup_ms_; }
   // Groups covering a width x height image with the kernel's workgroup size.
@@ -119,22 +124,52 @@ class Kernel {
   KernelDecl decl_{""};
   Context* ctx_ = nullptr;
   const ComputePipeline* pipeline_ = nullptr;
+  bool pending_ = false;
   double setup_ms_ = 0;
 };
 
 // The pipelines of a context, by KernelDecl::pipeline_key(); created once, kept for the context's life.
+// In deferred mode (a live viewer) a missing pipeline is compiled and created on a worker thread while the
+// caller goes on with the pipelines it has: get() returns null at once and pending() counts the work left.
 class KernelCache {
  public:
-  explicit KernelCache(Context& ctx) : ctx_(ctx) {}
-  // The pipeline for `decl`; `setup_ms` receives the compile and creation time (0 if it existed).
-  const ComputePipeline& get(const KernelDecl& decl, double* setup_ms);
+  explicit KernelCache(Context& ctx);
+  ~KernelCache();
+  // The pipeline for `decl`; `setup_ms` receives the compile and creation time (0 if it existed). Null only
+  // in deferred mode, while it compiles. A deferred compile that failed throws its error here, once.
+  const ComputePipeline* get(const KernelDecl& decl, double* setup_ms);
   size_t size() const;
-  void clear();  // destroys every pipeline (before the device goes)
+  void clear();  // destroys every pipeline (before the device goes); waits for the worker
+
+  void set_deferred(bool on);
+  bool deferred() const;
+  size_t pending() const;  // deferred compiles not yet finished
+  // Labels of the kernels compiling now ("volume/trace.comp [HETERO+GUIDING]"), for a status line.
+  std::vector<std::string> compiling() const;
+  uint64_t deferred_compiles() const;  // deferred compiles finished so far
+  uint64_t misses() const;             // get() calls that returned null (deferred, still compiling)
 
  private:
+  struct Job {
+    std::string key;
+    KernelDecl decl;
+  };
+  std::unique_ptr<ComputePipeline> create(const KernelDecl& decl) const;
+  void work();
+
   Context& ctx_;
   mutable std::mutex mutex_;
   std::map<std::string, std::unique_ptr<ComputePipeline>> pipelines_;
+  bool deferred_ = false;
+  std::vector<Job> queue_;                            // deferred jobs not started
+  std::vector<std::string> running_;                  // labels of the jobs in progress
+  std::map<std::string, std::exception_ptr> failed_;  // deferred errors, rethrown by get()
+  std::map<std::string, double> deferred_ms_;         // compile time of deferred pipelines, by key
+  uint64_t deferred_done_ = 0;
+  uint64_t misses_ = 0;
+  std::unique_ptr<std::thread> worker_;
+  std::condition_variable wake_;
+  bool stop_ = false;
 };
 
 // Device data that kernels read (a medium's grids, the BVH, the lights): it adds its feature defines and

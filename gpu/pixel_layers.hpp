@@ -20,9 +20,11 @@ class Context;
 class PixelLayers : public DeviceData {
  public:
   PixelLayers() = default;
-  // One buffer per name ("acc_l"), 16 bytes a pixel, named "<label> <name>" in the ledger.
+  // One buffer per name ("acc_l"), 16 bytes a pixel, named "<label> <name>" in the ledger. Names in `absent`
+  // keep their place in the host layout (a download reads them as zeros) but have no buffer: a kernel that
+  // declares these layers does not see them (no BINDING_<name>), and the scene pays nothing for them.
   PixelLayers(Context& ctx, const std::string& label, const std::string& category, uint64_t pixels,
-              std::vector<std::string> names);
+              std::vector<std::string> names, const std::vector<std::string>& absent = {});
 
   uint64_t pixels() const { return pixels_; }
   size_t count() const { return layers_.size(); }
@@ -32,8 +34,9 @@ class PixelLayers : public DeviceData {
   Buffer& operator[](size_t i) { return layers_[i]; }
   const Buffer& layer(const std::string& name) const;
   const std::vector<std::string>& names() const { return names_; }
+  bool has(const std::string& name) const;  // listed and not absent
 
-  // Every layer as a buffer of pixels x 16 bytes.
+  // Every present layer as a buffer of pixels x 16 bytes.
   void declare(KernelDecl& k) const override;
   void bind(Bindings& b) const override;
 
@@ -41,7 +44,7 @@ class PixelLayers : public DeviceData {
   void upload(const std::vector<float>& interleaved);  // stride() floats per pixel
   void fill_zero();
   void fill_zero(VkCommandBuffer cmd);
-  void copy_to(VkCommandBuffer cmd, PixelLayers& dst) const;  // same layer count and size
+  void copy_to(VkCommandBuffer cmd, PixelLayers& dst) const;  // same layers (and absent ones) and size
 
  private:
   uint64_t pixels_ = 0;

@@ -42,6 +42,10 @@ class VolumeMotion {
 
   // Records the passes (timer scope "volume_motion" when a timer is given); ends with a compute barrier.
   void run(VkCommandBuffer cmd, gpu::Timer* timer, const VolumeMotionInputs& in);
+  // The baseline without forward projection: each pixel's own virtual point, `in.prev_depth` holding this
+  // frame's depth, reprojected into the previous camera (camera motion only; scope "volume_motion_backward").
+  // Writes output() as run() does.
+  void run_backward(VkCommandBuffer cmd, gpu::Timer* timer, const VolumeMotionInputs& in);
 
   // vec4 per pixel: xy previous pixel position - current one, z distance of the point from this frame's
   // camera minus d_prev, w 1 where a point landed (else xy the surface motion, z 0, w 0).
@@ -57,9 +61,12 @@ class VolumeMotion {
   gpu::Buffer keys_;    // per pixel: (distance bits << 32 | source pixel) of the nearest point, atomicMin
   gpu::Buffer output_;  // vec4 per pixel
   double pipeline_ms_ = 0;
-  // Splat and resolve; no moving media, moving media, moving media with velocity grids.
-  const gpu::Kernel& kernel(bool resolve, int moving);
-  gpu::Kernel kernels_[2][3];
+  // Splat (0), resolve (1) and backward (2); no moving media, moving media, moving media with velocity
+  // grids (backward: none).
+  const gpu::Kernel& kernel(uint32_t step, int moving);
+  gpu::Kernel kernels_[3][3];
+  // Throws unless `in` is complete; returns 0 (no moving media), 1 (moving media), 2 (with velocity grids).
+  int check(const VolumeMotionInputs& in) const;
 };
 
 }  // namespace haze::guiding

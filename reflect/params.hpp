@@ -81,6 +81,11 @@ struct ParamInfo {
 // nlohmann::json keeps the last of two equal keys without a word.
 std::string duplicate_key(const std::string& text, bool ignore_comments = true);
 
+// Parses a hand-written JSON file's text (comments allowed) as scene files are read: malformed JSON is an
+// Error "<origin>: line L, column C: malformed JSON: ...; fix the syntax there", a key repeated in one
+// object an Error naming its path.
+nlohmann::json parse_json(const std::string& text, const std::string& origin);
+
 // A plain-text table of `describe` output, for `haze render --help-params`.
 std::string format_params(const std::vector<ParamInfo>& params);
 

@@ -29,6 +29,7 @@ struct FrameInputs {
   std::vector<float> volume;         // 3 floats per pixel
   std::vector<float> volume_motion;  // 2 floats per pixel (volume_motion.X/Y), or empty
   std::vector<float> emission;       // surface_emission.R/G/B (kept out of surface_demod), or empty
+  std::vector<float> vp_depth;       // virtual_point_depth.Z, or empty
 };
 
 class Layers {
@@ -144,6 +145,7 @@ FrameInputs frame_inputs(const ExrImage& img, const std::string& file) {
       const auto& v = img.channel(fmt::format("volume.{}", rgb[c]));
       for (size_t p = 0; p < pixels; ++p) f.volume[p * 3 + c] = v[p];
     }
+  if (L.has("virtual_point_depth.Z")) f.vp_depth = img.channel("virtual_point_depth.Z");
   if (L.has("volume_motion.X") && L.has("volume_motion.Y")) {
     const auto *vx = &L.finite("volume_motion.X"), *vy = &L.finite("volume_motion.Y");
     f.volume_motion.resize(pixels * 2);
@@ -180,7 +182,7 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
   outs.check("stats.json");
 
   std::unique_ptr<denoise::Svgf> svgf, svgf_volume;
-  gpu::Buffer colour, emission, volume, volume_motion, ldr;
+  gpu::Buffer colour, emission, volume, volume_motion, vp_depth, ldr;
   // The volume instance runs where the first frame has a volume signal; it reprojects with the virtual
   // points' motion (volume_motion.X/Y) when the sequence has it and denoise.volume_motion asks for it.
   bool volume_motion_used = false;
@@ -198,7 +200,6 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
       H = img.height;
       const size_t pixels = size_t(W) * H;
       colour = gpu::Buffer(ctx, "input colour", "per-frame temporaries", pixels * 12, "3 x f32");
-      emission = gpu::Buffer(ctx, "input emission", "per-frame temporaries", pixels * 12, "3 x f32");
       volume = gpu::Buffer(ctx, "input volume", "per-frame temporaries", pixels * 12, "3 x f32");
       gbuf = gpu::PixelLayers(ctx, "g-buffer", "per-frame temporaries", pixels, kGBufferLayers);
       prev = gpu::PixelLayers(ctx, "previous g-buffer", "previous-frame data", pixels, kPrevGBufferLayers);
@@ -209,17 +210,38 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
       if (volume_instance) {
         svgf_volume = std::make_unique<denoise::Svgf>(ctx, "volume", settings.denoise.volume, W, H, false);
         volume_motion_used =
-            settings.denoise.volume_motion == "virtual_points" &&
+            settings.denoise.volume_motion != "surface" &&
             std::find(img.channels.begin(), img.channels.end(), "volume_motion.X") != img.channels.end();
         if (volume_motion_used)
           volume_motion =
               gpu::Buffer(ctx, "input volume motion", "per-frame temporaries", pixels * 8, "2 x f32");
+        if (settings.denoise.volume.geometry == "virtual_points") {
+          if (!has_layer(img, "virtual_point_depth.Z"))
+            throw Error(
+                fmt::format("{}: no virtual_point_depth.Z layer, which denoise.volume.geometry "
+                            "\"virtual_points\" reads; use frames haze rendered, or --set "
+                            "denoise.volume.geometry=surface",
+                            file));
+          vp_depth =
+              gpu::Buffer(ctx, "input virtual point depth", "per-frame temporaries", pixels * 4, "f32");
+        }
       }
     } else if (img.width != W || img.height != H) {
       throw Error(fmt::format("{}: {}x{} differs from the first frame's {}x{}; a sequence has one size", file,
                               img.width, img.height, W, H));
     }
     FrameInputs in = frame_inputs(img, file);
+    // The emission is added back where the sequence has it (scenes with emissive surfaces), in every frame.
+    if (i == 0 && !in.emission.empty()) {
+      svgf->set_emission(true);
+      emission =
+          gpu::Buffer(ctx, "input emission", "per-frame temporaries", in.emission.size() * 4, "3 x f32");
+    }
+    if (svgf->emission() != !in.emission.empty())
+      throw Error(
+          fmt::format("{}: {} surface_emission.R/G/B layers; the first frame {}; a sequence has the same "
+                      "layers in every frame",
+                      file, in.emission.empty() ? "no" : "has", svgf->emission() ? "has them" : "does not"));
     if (svgf_volume && !has_volume(img))
       throw Error(
           fmt::format("{}: no volume.R/G/B layers, which the first frame has; a sequence has the same "
@@ -234,6 +256,14 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
     if (!in.emission.empty()) emission.upload(in.emission);
     volume.upload(in.volume);
     if (volume_motion_used) volume_motion.upload(in.volume_motion);
+    if (vp_depth.valid()) {
+      if (in.vp_depth.empty())
+        throw Error(
+            fmt::format("{}: no virtual_point_depth.Z layer, which the first frame has; a sequence has "
+                        "the same layers in every frame",
+                        file));
+      vp_depth.upload(in.vp_depth);
+    }
     gbuf.upload(in.gbuffer);
     if (i == 0) prev.upload(in.gbuffer);
     const TonemapPush tp = tonemap_push(settings.render, uint32_t(W * H), {0, 0}, {3, 0});
@@ -246,6 +276,7 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
         denoise::SvgfInputs vi = si;
         vi.colour = &volume;
         vi.emission = nullptr;
+        if (vp_depth.valid()) vi.depth = &vp_depth;
         if (volume_motion_used) {
           vi.motion = &volume_motion;
           vi.motion_stride = 2;

@@ -155,14 +155,28 @@ gpu::KernelDecl tonemap_decl(uint64_t pixels, bool surface_half, bool volume_hal
   return d;
 }
 
+// A resolved frame's outputs, copied into host-visible buffers in the frame's own command buffer, so that
+// later frames may overwrite the layers while the host reads this one.
+struct Renderer::Readback {
+  gpu::Buffer out, gbuffer, ldr, counters, volume_motion;
+  std::vector<bool> out_present;  // out's layers in the host layout; absent ones were not copied
+  gpu::Buffer surface_output, surface_moments, volume_output, volume_moments;
+};
+
 Renderer::Renderer(gpu::Context& ctx, const scene::Scene& s, uint32_t frame, const scene::Scene* prev)
     : ctx_(ctx), scene_(s), media_(ctx), surfaces_(ctx), lights_(ctx), guide_(ctx) {
-  timer_ = std::make_unique<gpu::Timer>(ctx, 48);
+  ring_ = std::make_unique<gpu::FrameRing>(ctx, "renderer", 2, 64);
+  ring_->on_times([this](const std::vector<gpu::TimerScope>& t) { add_pass_times(t); });
   shaders_at_start_ = ctx.shaders().stats();
   load(s, frame, prev, true);
 }
 
-Renderer::~Renderer() = default;
+Renderer::~Renderer() {
+  // Its frames finish while everything they use exists; what was waiting for them is dropped (the callers'
+  // callbacks may be gone: finish() or resolve() is how results are taken).
+  ring_->discard();
+  ring_.reset();
+}
 
 gpu::Kernel Renderer::kernel(gpu::KernelDecl decl) {
   gpu::Kernel k(ctx_, std::move(decl));
@@ -211,12 +225,23 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
     counters_ =
         gpu::Buffer(ctx_, "frame counters", "per-frame temporaries", glsl::COUNTERS * 8, "u64 COUNT_*");
   scene_buf_.upload(&g, sizeof(g));
+  block_ = g;
+  block_dirty_ = false;
+  object_motion_ = false;
+  for (size_t i = 0; i < s.media.size() && i < p.media.size(); ++i)
+    object_motion_ |= s.media[i].transform.matrix() != p.media[i].transform.matrix();
+  for (size_t i = 0; i < s.surfaces.size() && i < p.surfaces.size(); ++i)
+    object_motion_ |= s.surfaces[i].transform.matrix() != p.surfaces[i].transform.matrix();
 
-  // The frame's layers, remade only when the size changes.
+  // The frame's layers, remade only when the size changes or emitters come or go: the camera hits' emission
+  // (acc_emit, out_emit) is a layer of its own only in scenes with emissive surfaces.
   const uint64_t pixels = uint64_t(s.render.width) * s.render.height;
-  if (accum_.pixels() != pixels) {
-    accum_ = gpu::PixelLayers(ctx_, "accumulation", "per-frame temporaries", pixels, kAccumulationLayers);
-    out_ = gpu::PixelLayers(ctx_, "resolved", "outputs", pixels, kResolvedLayers);
+  const bool emission = !surfaces_.geometry().emitters.empty();
+  if (accum_.pixels() != pixels || accum_.has("acc_emit") != emission) {
+    accum_ = gpu::PixelLayers(ctx_, "accumulation", "per-frame temporaries", pixels, kAccumulationLayers,
+                              emission ? std::vector<std::string>{} : std::vector<std::string>{"acc_emit"});
+    out_ = gpu::PixelLayers(ctx_, "resolved", "outputs", pixels, kResolvedLayers,
+                            emission ? std::vector<std::string>{} : std::vector<std::string>{"out_emit"});
     gbuffer_ = gpu::PixelLayers(ctx_, "g-buffer", "per-frame temporaries", pixels, kGBufferLayers);
     prev_gbuffer_ =
         gpu::PixelLayers(ctx_, "previous g-buffer", "previous-frame data", pixels, kPrevGBufferLayers);
@@ -224,6 +249,7 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
     has_frame_ = false;  // the resolved layers keep the last frame's virtual point depth for volume motion
   }
   accum_.fill_zero();
+  clear_accum_ = false;
   samples_ = 0;
   folded_.clear();
   folded_samples_ = 0;
@@ -253,10 +279,11 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   // The surface instance on the demodulated surface signal; the volume instance on the volume signal with
   // albedo 1 and the volume motion vectors. Each keeps its history across frames of the same size.
   keep_svgf(svgf_surface_, "surface", surfaces_.any() && s.denoise.surface.enabled, s.denoise.surface, true);
+  if (svgf_surface_) svgf_surface_->set_emission(emission);
   keep_svgf(svgf_volume_, "volume", media_.any() && s.denoise.volume.enabled, s.denoise.volume, false);
   if (svgf_surface_ || svgf_volume_)
     tonemap_ = kernel(tonemap_decl(pixels, bool(svgf_surface_), bool(svgf_volume_)));
-  const bool virtual_points = svgf_volume_ && s.denoise.volume_motion == "virtual_points";
+  const bool virtual_points = svgf_volume_ && s.denoise.volume_motion != "surface";
   if (virtual_points || (guide_.active() && s.guiding.temporal)) {
     if (!volume_motion_ || volume_motion_->width() != uint32_t(s.render.width) ||
         volume_motion_->height() != uint32_t(s.render.height)) {
@@ -269,9 +296,39 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   }
   // How the media moved, for the pass; velocity grids only when a previous frame's points will be projected.
   media_.update_motion(s, p, bool(volume_motion_), !fresh && has_frame_);
+  // Velocity moves the volume's points between frames whatever the camera does: no camera-only fast path.
+  object_motion_ |= media_.velocity_grids() != nullptr;
+}
+
+void Renderer::set_camera(const scene::Camera& camera, const scene::Camera& prev, uint32_t frame) {
+  if (object_motion_) {
+    // The media and surface motion of the last load would still apply: reload without it.
+    scene::Scene s = scene_, p = scene_;
+    s.camera = camera;
+    p.camera = prev;
+    load(s, frame, &p, false);
+    return;
+  }
+  scene_.camera = camera;
+  const CameraBasis cb = camera_basis(camera, scene_.render), pb = camera_basis(prev, scene_.render);
+  block_.cam_position = cb.position;
+  block_.cam_right = cb.right;
+  block_.cam_up = cb.up;
+  block_.cam_forward = cb.forward;
+  block_.prev_cam_position = pb.position;
+  block_.prev_cam_right = pb.right;
+  block_.prev_cam_up = pb.up;
+  block_.prev_cam_forward = pb.forward;
+  block_.counts.w = scene_.render.seed ^ (frame * 0x9e3779b9u);
+  block_dirty_ = true;
+  clear_accum_ = true;
+  samples_ = 0;
+  folded_.clear();
+  folded_samples_ = 0;
 }
 
 void Renderer::restart(const scene::Scene& s, uint32_t frame, const scene::Scene* prev) {
+  ring_->finish();  // the last run's times and images arrive before its statistics are cleared
   svgf_surface_.reset();
   svgf_volume_.reset();
   has_frame_ = false;
@@ -312,20 +369,50 @@ gpu::Bindings Renderer::frame_bindings() const {
   return b;
 }
 
-void Renderer::record_times() {
-  for (auto& [name, ms] : timer_->read_ms()) passes_[name].ms.push_back(ms);
+void Renderer::add_pass_times(const std::vector<gpu::TimerScope>& scopes) const {
+  for (const auto& t : scopes) passes_[t.pass].ms.push_back(t.end_ms - t.begin_ms);
 }
 
-void Renderer::start_frame(VkCommandBuffer cmd) {
+const std::map<std::string, PassStats>& Renderer::pass_stats() const {
+  ring_->finish();
+  return passes_;
+}
+
+void Renderer::finish() {
+  ring_->finish();
+}
+
+void Renderer::discard() {
+  ring_->discard();
+}
+
+bool Renderer::ready() const {
+  for (const gpu::Kernel* k : {&trace_, &resolve_, &gbuffer_pass_})
+    if (!k->valid()) return false;
+  return true;
+}
+
+void Renderer::update_block(VkCommandBuffer cmd) {
+  if (!block_dirty_) return;
+  vkCmdUpdateBuffer(cmd, scene_buf_.handle(), 0, sizeof(block_), &block_);
+  gpu::compute_barrier(cmd);
+  block_dirty_ = false;
+}
+
+void Renderer::start_frame(VkCommandBuffer cmd, gpu::Timer* timer) {
   const auto& r = scene_.render;
+  if (clear_accum_) {
+    accum_.fill_zero(cmd);
+    clear_accum_ = false;
+  }
   counters_.fill_zero(cmd);
   // Keep the last frame's G-buffer, then write this one's.
   gbuffer_.copy_to(cmd, prev_gbuffer_);
   gpu::compute_barrier(cmd);
-  timer_->begin(cmd, "gbuffer");
+  if (timer) timer->begin(cmd, "gbuffer");
   const auto [gx, gy] = gbuffer_pass_.groups_2d(uint32_t(r.width), uint32_t(r.height));
   gbuffer_pass_.dispatch(cmd, frame_bindings(), nullptr, gx, gy);
-  timer_->end(cmd);
+  if (timer) timer->end(cmd);
   gpu::compute_barrier(cmd);
   if (volume_motion_) {
     // The resolved layers still hold the previous frame's; without one, no point is projected.
@@ -335,39 +422,53 @@ void Renderer::start_frame(VkCommandBuffer cmd) {
     in.prev_depth = &out_[layer_of(glsl::OUT_VPDEPTH)];
     in.depth_stride = 4;
     in.depth_offset = glsl::OUT_VPDEPTH % 4;
+    if (svgf_volume_ && svgf_volume_->geometry_depth()) {
+      // The volume instance's own geometry: the virtual point depth it accumulated over its history, far less
+      // noisy than the last frame's alone.
+      in.prev_depth = svgf_volume_->geometry_depth();
+      in.depth_stride = 2;
+      in.depth_offset = 0;
+    }
     in.g_normal = &gbuffer_[layer_of(glsl::G_MOTION)];
     in.media = media_.motion();
     in.media_count = media_.moving();
     in.velocity_grids = media_.velocity_grids();
-    volume_motion_->run(cmd, timer_.get(), in);
+    volume_motion_->run(cmd, timer, in);
   }
-  guide_.start_frame(cmd, timer_.get(), scene_buf_, volume_motion_ ? &volume_motion_->output() : nullptr,
+  guide_.start_frame(cmd, timer, scene_buf_, volume_motion_ ? &volume_motion_->output() : nullptr,
                      has_frame_);
 }
 
-void Renderer::add_samples(int n, const std::function<void(int, int)>& progress) {
+void Renderer::record_samples(VkCommandBuffer cmd, gpu::Timer* timer, int n) {
   const auto& r = scene_.render;
   const auto [gx, gy] = trace_.groups_2d(uint32_t(r.width), uint32_t(r.height));
   const gpu::Bindings b = frame_bindings();
+  update_block(cmd);
   for (int i = 0; i < n; ++i) {
     uint32_t sample_index = uint32_t(samples_);
-    ctx_.submit_and_wait([&](VkCommandBuffer cmd) {
-      timer_->reset(cmd);
-      if (samples_ == 0) start_frame(cmd);
-      timer_->begin(cmd, "trace");
-      trace_.dispatch(cmd, b, &sample_index, gx, gy);
-      // The next sample reads the states this one wrote.
-      if (guide_.active()) gpu::compute_barrier(cmd);
-      timer_->end(cmd);
-    });
-    record_times();
+    if (samples_ == 0) start_frame(cmd, timer);
+    // A sample adds to the sums the one before it wrote (in the same command buffer).
+    if (i > 0 && !guide_.active()) gpu::compute_barrier(cmd);
+    if (timer) timer->begin(cmd, "trace");
+    trace_.dispatch(cmd, b, &sample_index, gx, gy);
+    // The next sample reads the states this one wrote.
+    if (guide_.active()) gpu::compute_barrier(cmd);
+    if (timer) timer->end(cmd);
     ++samples_;
-    if (samples_ - folded_samples_ >= kFoldSamples) fold();
-    if (progress) progress(i + 1, n);
   }
 }
 
-Image Renderer::resolve() {
+void Renderer::add_samples(int n, const std::function<void(int, int)>& progress) {
+  for (int i = 0; i < n; ++i) {
+    VkCommandBuffer cmd = ring_->begin();
+    record_samples(cmd, &ring_->timer(), 1);
+    if (progress) ring_->on_complete([progress, i, n] { progress(i + 1, n); });
+    ring_->submit();
+    if (samples_ - folded_samples_ >= kFoldSamples) fold();
+  }
+}
+
+void Renderer::record_resolve(VkCommandBuffer cmd, gpu::Timer* timer) {
   const auto& r = scene_.render;
   uint32_t pixels = uint32_t(r.width) * uint32_t(r.height);
   // The preview composites the denoised signals (or the noisy one where an instance does not run).
@@ -380,71 +481,206 @@ Image Renderer::resolve() {
     float exposure_scale;
     uint32_t tonemap;
   } push{pixels, uint32_t(samples_), tp.exposure_scale, tp.tonemap};
-  // After a fold the resolve reads the double sums, rounded to float once; the device sums start afresh.
+  update_block(cmd);
+  if (timer) timer->begin(cmd, "resolve");
+  resolve_.dispatch_1d(cmd, frame_bindings(), &push, pixels);
+  if (timer) timer->end(cmd);
+  if (!svgf_surface_ && !svgf_volume_) {
+    has_frame_ = true;
+    return;
+  }
+  gpu::compute_barrier(cmd);
+  denoise::SvgfInputs in;
+  in.gbuffer = &gbuffer_;
+  in.prev_gbuffer = &prev_gbuffer_;
+  in.motion = &gbuffer_[layer_of(glsl::G_MOTION)];
+  in.motion_stride = 4;
+  in.motion_offset = glsl::G_MOTION % 4;
+  in.colour_stride = 4;
+  if (svgf_surface_) {
+    in.colour = &out_[layer_of(glsl::OUT_DEMOD)];
+    in.colour_offset = glsl::OUT_DEMOD % 4;
+    if (out_.has("out_emit")) {
+      in.emission = &out_[layer_of(glsl::OUT_EMIT)];  // added back after remodulation
+      in.emission_stride = 4;
+      in.emission_offset = glsl::OUT_EMIT % 4;
+    }
+    svgf_surface_->run(cmd, timer, in);
+  }
+  if (svgf_volume_) {
+    in.emission = nullptr;
+    in.colour = &vol;
+    in.colour_offset = glsl::OUT_VOL % 4;
+    if (scene_.denoise.volume_motion == "backward") {
+      // The baseline: this frame's own virtual points, reprojected with the camera's motion.
+      guiding::VolumeMotionInputs vm;
+      vm.scene = &scene_buf_;
+      vm.prev_depth = &vol;
+      vm.depth_stride = 4;
+      vm.depth_offset = glsl::OUT_VPDEPTH % 4;
+      vm.g_normal = &gbuffer_[layer_of(glsl::G_MOTION)];
+      volume_motion_->run_backward(cmd, timer, vm);
+    }
+    if (scene_.denoise.volume_motion != "surface") {
+      in.motion = &volume_motion_->output();
+      in.motion_stride = 4;
+      in.motion_offset = 0;
+    }
+    in.depth = &vol;  // used by geometry "virtual_points"
+    in.depth_stride = 4;
+    in.depth_offset = glsl::OUT_VPDEPTH % 4;
+    svgf_volume_->run(cmd, timer, in);
+  }
+  if (timer) timer->begin(cmd, "tonemap");
+  gpu::Bindings b;
+  b.set("surface", svgf_surface_ ? svgf_surface_->output() : surf);
+  b.set("volume", svgf_volume_ ? svgf_volume_->output() : vol);
+  b.set("ldr", ldr_);
+  tonemap_.dispatch_1d(cmd, b, &tp, pixels);
+  if (timer) timer->end(cmd);
+  has_frame_ = true;
+}
+
+std::unique_ptr<Renderer::Readback> Renderer::take_readback() {
+  if (readbacks_.empty()) return std::make_unique<Readback>();
+  std::unique_ptr<Readback> rb = std::move(readbacks_.back());
+  readbacks_.pop_back();
+  return rb;
+}
+
+void Renderer::record_readback(VkCommandBuffer cmd, Readback& rb) {
+  // A readback buffer holds its source's bytes (layers one after another); remade when the size changes.
+  auto copy = [&](gpu::Buffer& dst, const char* name, const std::vector<const gpu::Buffer*>& src) {
+    uint64_t bytes = 0;
+    for (const gpu::Buffer* b : src) bytes += b->size();
+    if (bytes == 0) {
+      dst = gpu::Buffer();
+      return;
+    }
+    if (!dst.valid() || dst.size() != bytes)
+      dst = gpu::Buffer::host_visible(ctx_, fmt::format("readback {}", name), "readback", bytes);
+    uint64_t at = 0;
+    for (const gpu::Buffer* b : src) {
+      gpu::copy_buffer(cmd, *b, dst, b->size(), 0, at);
+      at += b->size();
+    }
+  };
+  auto layers = [](const gpu::PixelLayers& l) {
+    std::vector<const gpu::Buffer*> v;
+    for (size_t i = 0; i < l.count(); ++i)
+      if (l[i].valid()) v.push_back(&l[i]);
+    return v;
+  };
+  auto one = [](const gpu::Buffer* b) {
+    return b ? std::vector<const gpu::Buffer*>{b} : std::vector<const gpu::Buffer*>{};
+  };
+  gpu::compute_barrier(cmd);
+  rb.out_present.assign(out_.count(), false);
+  for (size_t i = 0; i < out_.count(); ++i) rb.out_present[i] = out_[i].valid();
+  copy(rb.out, "resolved", layers(out_));
+  copy(rb.gbuffer, "g-buffer", layers(gbuffer_));
+  copy(rb.ldr, "preview", one(&ldr_));
+  copy(rb.counters, "frame counters", one(&counters_));
+  copy(rb.volume_motion, "volume motion", one(volume_motion_ ? &volume_motion_->output() : nullptr));
+  copy(rb.surface_output, "svgf.surface output", one(svgf_surface_ ? &svgf_surface_->output() : nullptr));
+  copy(rb.surface_moments, "svgf.surface moments", one(svgf_surface_ ? &svgf_surface_->moments() : nullptr));
+  copy(rb.volume_output, "svgf.volume output", one(svgf_volume_ ? &svgf_volume_->output() : nullptr));
+  copy(rb.volume_moments, "svgf.volume moments", one(svgf_volume_ ? &svgf_volume_->moments() : nullptr));
+}
+
+Image Renderer::read_image(const Readback& rb, int samples, int width, int height) {
+  const size_t pixels = size_t(width) * size_t(height);
+  auto floats = [](const gpu::Buffer& b) {
+    std::vector<float> v(b.size() / 4);
+    b.read_mapped(v.data(), v.size() * 4);
+    return v;
+  };
+  // Present layers one after another -> side by side (stride 4 * layers floats per pixel); absent layers
+  // keep their place as zeros.
+  auto interleave = [&](const gpu::Buffer& b, std::vector<bool> present) {
+    const std::vector<float> planes = floats(b);
+    if (present.empty()) present.assign(planes.size() / (pixels * 4), true);
+    const size_t layers = present.size();
+    std::vector<float> out(pixels * 4 * layers, 0.f);
+    for (size_t l = 0, at = 0; l < layers; ++l) {
+      if (!present[l]) continue;
+      for (size_t p = 0; p < pixels; ++p)
+        for (size_t c = 0; c < 4; ++c) out[(p * layers + l) * 4 + c] = planes[(at * pixels + p) * 4 + c];
+      ++at;
+    }
+    return out;
+  };
+  Image img;
+  img.width = width;
+  img.height = height;
+  img.samples = samples;
+  img.data = interleave(rb.out, rb.out_present);
+  img.surface_emission = rb.out_present[layer_of(glsl::OUT_EMIT)];
+  img.gbuffer = interleave(rb.gbuffer, {});
+  img.ldr.resize(pixels);
+  rb.ldr.read_mapped(img.ldr.data(), pixels * 4);
+  auto svgf = [&](const gpu::Buffer& output, const gpu::Buffer& moments) {
+    std::vector<glm::uvec2> o(pixels);
+    output.read_mapped(o.data(), pixels * 8);
+    return denoise::Svgf::decode(pixels, o, floats(moments));
+  };
+  if (rb.surface_output.valid()) img.surface_denoised = svgf(rb.surface_output, rb.surface_moments);
+  if (rb.volume_output.valid()) img.volume_denoised = svgf(rb.volume_output, rb.volume_moments);
+  if (rb.volume_motion.valid()) {
+    img.volume_motion.resize(pixels);
+    rb.volume_motion.read_mapped(img.volume_motion.data(), pixels * 16);
+  }
+  std::vector<uint32_t> words(2 * glsl::COUNTERS);
+  rb.counters.read_mapped(words.data(), words.size() * 4);
+  img.counters = frame_counters(words);
+  return img;
+}
+
+void Renderer::resolve_async(std::function<void(Image)> done) {
+  // After a fold the resolve reads the double sums, rounded to float once.
   const bool folded = folded_samples_ > 0;
   if (folded) {
     fold();
     accum_.upload(std::vector<float>(folded_.begin(), folded_.end()));
   }
-  ctx_.submit_and_wait([&](VkCommandBuffer cmd) {
-    timer_->reset(cmd);
-    timer_->begin(cmd, "resolve");
-    resolve_.dispatch_1d(cmd, frame_bindings(), &push, pixels);
-    timer_->end(cmd);
-    if (!svgf_surface_ && !svgf_volume_) return;
+  VkCommandBuffer cmd = ring_->begin();
+  record_resolve(cmd, &ring_->timer());
+  if (folded) {
+    // The device held the folded sums for this resolve only: the next samples add to zero again.
     gpu::compute_barrier(cmd);
-    denoise::SvgfInputs in;
-    in.gbuffer = &gbuffer_;
-    in.prev_gbuffer = &prev_gbuffer_;
-    in.motion = &gbuffer_[layer_of(glsl::G_MOTION)];
-    in.motion_stride = 4;
-    in.motion_offset = glsl::G_MOTION % 4;
-    in.colour_stride = 4;
-    if (svgf_surface_) {
-      in.colour = &out_[layer_of(glsl::OUT_DEMOD)];
-      in.colour_offset = glsl::OUT_DEMOD % 4;
-      in.emission = &out_[layer_of(glsl::OUT_EMIT)];  // added back after remodulation
-      in.emission_stride = 4;
-      in.emission_offset = glsl::OUT_EMIT % 4;
-      svgf_surface_->run(cmd, timer_.get(), in);
-    }
-    if (svgf_volume_) {
-      in.emission = nullptr;
-      in.colour = &vol;
-      in.colour_offset = glsl::OUT_VOL % 4;
-      if (scene_.denoise.volume_motion == "virtual_points") {
-        in.motion = &volume_motion_->output();
-        in.motion_stride = 4;
-        in.motion_offset = 0;
-      }
-      svgf_volume_->run(cmd, timer_.get(), in);
-    }
-    timer_->begin(cmd, "tonemap");
-    gpu::Bindings b;
-    b.set("surface", svgf_surface_ ? svgf_surface_->output() : surf);
-    b.set("volume", svgf_volume_ ? svgf_volume_->output() : vol);
-    b.set("ldr", ldr_);
-    tonemap_.dispatch_1d(cmd, b, &tp, pixels);
-    timer_->end(cmd);
+    accum_.fill_zero(cmd);
+  }
+  std::shared_ptr<Readback> rb = take_readback();
+  record_readback(cmd, *rb);
+  // The scene may change before the frame is finished: its size is taken now.
+  ring_->on_complete([this, rb, done = std::move(done), samples = samples_, w = scene_.render.width,
+                      h = scene_.render.height]() mutable {
+    Image img = read_image(*rb, samples, w, h);
+    readbacks_.push_back(std::make_unique<Readback>(std::move(*rb)));
+    done(std::move(img));
   });
-  record_times();
-  if (folded) accum_.fill_zero();
-  has_frame_ = true;
+  ring_->submit();
+}
+
+std::function<Image()> Renderer::record_image(VkCommandBuffer cmd) {
+  std::shared_ptr<Readback> rb = take_readback();
+  record_readback(cmd, *rb);
+  return [this, rb, samples = samples_, w = scene_.render.width, h = scene_.render.height]() {
+    Image img = read_image(*rb, samples, w, h);
+    readbacks_.push_back(std::make_unique<Readback>(std::move(*rb)));
+    return img;
+  };
+}
+
+Image Renderer::resolve() {
   Image img;
-  img.width = r.width;
-  img.height = r.height;
-  img.samples = samples_;
-  img.data = out_.download();
-  img.ldr = ldr_.download_vector<uint32_t>();
-  img.gbuffer = gbuffer_.download();
-  if (svgf_surface_) img.surface_denoised = svgf_surface_->download();
-  if (svgf_volume_) img.volume_denoised = svgf_volume_->download();
-  if (volume_motion_) img.volume_motion = volume_motion_->download();
-  img.counters = frame_counters(counters_.download_vector<uint32_t>());
+  resolve_async([&img](Image i) { img = std::move(i); });
+  ring_->finish();
   return img;
 }
 
 std::vector<double> Renderer::accum() const {
+  ring_->finish();
   const std::vector<float> device = accum_.download();
   std::vector<double> sums(device.begin(), device.end());
   for (size_t i = 0; i < folded_.size(); ++i) sums[i] += folded_[i];
@@ -452,6 +688,7 @@ std::vector<double> Renderer::accum() const {
 }
 
 void Renderer::fold() {
+  ring_->finish();
   const std::vector<float> device = accum_.download();
   folded_.resize(device.size(), 0.0);
   for (size_t i = 0; i < device.size(); ++i) folded_[i] += device[i];
@@ -467,6 +704,7 @@ std::vector<std::string> Renderer::notes() const {
 }
 
 nlohmann::json Renderer::stats() const {
+  ring_->finish();
   nlohmann::json j;
   j["device"] = ctx_.describe();
   // The trace kernel's features, lower case: "haze+sun", "empty" for none.
@@ -491,6 +729,12 @@ nlohmann::json Renderer::stats() const {
   for (const auto& [name, st] : passes_) p[name] = st.to_json();
   j["passes"] = p;
   j["memory"] = ctx_.ledger().to_json();
+  // Frames in flight: host waits for the device (frame pacing in the ring; a host access to memory a frame
+  // in flight might use, Context::wait_in_flight).
+  j["frame_loop"] = {{"frames_in_flight", ring_->frames()},
+                     {"submissions", ring_->submitted()},
+                     {"host_wait_ms", ring_->wait_ms()},
+                     {"host_waits_for_memory", ctx_.host_waits()}};
   j["notes"] = notes();
   const auto& maj = media_.host().majorant;
   j["majorant_resolution"] = {maj.res.x, maj.res.y, maj.res.z};

@@ -63,8 +63,9 @@ struct Image {
   int width = 0, height = 0;
   int samples = 0;
   std::vector<float> data;
-  std::vector<float> gbuffer;  // G_STRIDE floats per pixel
-  std::vector<uint32_t> ldr;   // RGBA8, row 0 at the top (the denoised frame when a denoiser ran)
+  std::vector<float> gbuffer;     // G_STRIDE floats per pixel
+  bool surface_emission = false;  // the scene has emissive surfaces: OUT_EMIT holds their emission (else 0)
+  std::vector<uint32_t> ldr;      // RGBA8, row 0 at the top (the denoised frame when a denoiser ran)
   std::optional<denoise::SvgfResult> surface_denoised;  // when the surface instance ran
   std::optional<denoise::SvgfResult> volume_denoised;   // when the volume instance ran
   std::vector<glm::vec4> volume_motion;  // when computed: guiding::VolumeMotion::output() per pixel
@@ -120,21 +121,58 @@ class Renderer {
   // Starts an independent render of `s` (a sweep's next run): as set_scene, but every history (denoisers,
   // guide, virtual points), the pass statistics and the kernel setup time start afresh. Kernels are kept.
   void restart(const scene::Scene& s, uint32_t frame, const scene::Scene* prev = nullptr);
+  // A new camera only (a live view): as set_scene with the current scene seen from `camera` at `frame`, the
+  // previous frame seen from `prev` (motion vectors), but nothing is uploaded or rebuilt: the scene block is
+  // updated in the next recorded frame, so no frame in flight is waited for.
+  void set_camera(const scene::Camera& camera, const scene::Camera& prev, uint32_t frame);
 
-  // One dispatch per sample; progress(done, total) after each.
+  // The frame loop streams: each sample is one submission of this renderer's frame ring
+  // (gpu::FrameRing, two in flight), and the host waits only for the submission two before (never for
+  // the one it just made). progress(done, total) as each completes.
   void add_samples(int n, const std::function<void(int, int)>& progress = {});
   int samples() const { return samples_; }
   // Means of the samples so far, the G-buffer, and the denoisers' output: each call is one frame for them
-  // (their history advances), so call it once per frame.
+  // (their history advances), so call it once per frame. Waits for the frame.
   Image resolve();
+  // As resolve(), without waiting: `done` receives the image once the frame is finished on the device (from
+  // a later submission or finish()); the outputs are copied into a readback buffer of the frame's own.
+  void resolve_async(std::function<void(Image)> done);
+  // Waits for this renderer's submissions in flight and runs what waits for them (timings, images).
+  void finish();
+  // Waits for them and drops what waits for them (a failed run; also on destruction).
+  void discard();
   // Raw per-pixel sums (ACC_STRIDE per pixel): the device's float sums of the samples since the last fold
-  // plus the folded double sums.
+  // plus the folded double sums. Waits for the samples in flight.
   std::vector<double> accum() const;
   // The device sums at most this many samples in float before they are folded into double sums on the
   // host, so that a reference of 2^24 samples still converges (a float sum stops growing once a sample is
-  // below half its ulp). Renders of fewer samples never fold.
+  // below half its ulp). Renders of fewer samples never fold; add_samples folds (a wait for the device), the
+  // samples a caller records itself (record_samples) do not.
   static constexpr int kFoldSamples = 1024;
   int folded_samples() const { return folded_samples_; }
+
+  // The same passes recorded into a caller's frame (a viewer's command buffer, timed with its timer): the
+  // first samples of a frame start it (G-buffer, volume motion, the guide carried over); `record_resolve`
+  // resolves, denoises and tonemaps into preview(). The caller reports the frame's times with
+  // add_pass_times once they are read.
+  void record_samples(VkCommandBuffer cmd, gpu::Timer* timer, int n);
+  void record_resolve(VkCommandBuffer cmd, gpu::Timer* timer);
+  void add_pass_times(const std::vector<gpu::TimerScope>& scopes) const;
+  // Copies the last resolved frame's outputs in the caller's frame; the function returned reads them as an
+  // Image once that frame is finished (a viewer's "Save image").
+  std::function<Image()> record_image(VkCommandBuffer cmd);
+  // What a viewer shows: the 8-bit preview (RGBA8, row 0 at the top), the resolved layers, the G-buffer,
+  // the denoisers, the volume motion (null where absent).
+  const gpu::Buffer& preview() const { return ldr_; }
+  const gpu::PixelLayers& resolved() const { return out_; }
+  const gpu::PixelLayers& gbuffer() const { return gbuffer_; }
+  const denoise::Svgf* surface_denoiser() const { return svgf_surface_.get(); }
+  const denoise::Svgf* volume_denoiser() const { return svgf_volume_.get(); }
+  const guiding::VolumeMotion* volume_motion() const { return volume_motion_.get(); }
+  const guiding::Guide& guide() const { return guide_; }
+  const scene::Scene& scene() const { return scene_; }
+  // Whether every kernel of the current scene is ready (false while a deferred compile runs, gpu/kernel.hpp).
+  bool ready() const;
 
   // The trace kernel's permutation, and whether it has feature HAZE_<name> ("GUIDING", "SURFACES", ...).
   const gpu::KernelDecl& trace_decl() const { return trace_.decl(); }
@@ -148,11 +186,15 @@ class Renderer {
   // The distance-guiding states (K vec4 {W, N, m1, m2} per grid vertex, shaders/guiding/guide.glsl); empty
   // without guiding.
   std::vector<glm::vec4> guide_states() const { return guide_.download(); }
-  const std::map<std::string, PassStats>& pass_stats() const { return passes_; }
+  // The GPU times of every submission (finish() first: they arrive a frame late).
+  const std::map<std::string, PassStats>& pass_stats() const;
+  // Those that arrived so far, without waiting (from inside a completion such as resolve_async's).
+  const std::map<std::string, PassStats>& pass_stats_so_far() const { return passes_; }
   double pipeline_ms() const { return pipeline_ms_; }  // compiling and creating this run's kernels
   nlohmann::json stats() const;
 
  private:
+  struct Readback;  // a resolved frame's outputs copied for the host
   gpu::Context& ctx_;
   scene::Scene scene_;
   // The parts.
@@ -168,8 +210,14 @@ class Renderer {
   gpu::PixelLayers accum_, out_, gbuffer_, prev_gbuffer_;
   gpu::Kernel trace_, resolve_, gbuffer_pass_, tonemap_;
   bool has_frame_ = false;  // a frame was resolved since the layers were (re)made: history exists
-  std::unique_ptr<gpu::Timer> timer_;
-  std::map<std::string, PassStats> passes_;
+  glsl::GpuScene block_{};  // what scene_buf_ holds (or will, once block_dirty_ is recorded)
+  bool block_dirty_ = false;
+  bool clear_accum_ = false;    // the accumulation is cleared at the next frame's start
+  bool object_motion_ = false;  // the last load's previous frame placed media or surfaces elsewhere
+  // Declared after everything its frames use, so that it is destroyed (and finished) first.
+  mutable std::map<std::string, PassStats> passes_;
+  std::vector<std::unique_ptr<Readback>> readbacks_;  // free ones, reused
+  mutable std::unique_ptr<gpu::FrameRing> ring_;
   double pipeline_ms_ = 0;
   gpu::ShaderCacheStats shaders_at_start_;  // the context's compiler counters when this run began
   int samples_ = 0;
@@ -181,7 +229,6 @@ class Renderer {
 
   // set_scene, or with `fresh` the start of an independent run (the guide's states are emptied).
   void load(const scene::Scene& s, uint32_t frame, const scene::Scene* prev, bool fresh);
-  void record_times();
   // A kernel from the context's cache; adds its setup time to pipeline_ms_.
   gpu::Kernel kernel(gpu::KernelDecl decl);
   // Makes `svgf` exist with `params` at the scene's size when `wanted` (keeping its history when the size is
@@ -190,8 +237,12 @@ class Renderer {
                  const denoise::SvgfParams& params, bool remodulate);
   // Where this frame starts: the G-buffer, the previous frame's virtual points projected forward, the guide
   // carried over.
-  void start_frame(VkCommandBuffer cmd);
+  void start_frame(VkCommandBuffer cmd, gpu::Timer* timer);
   gpu::Bindings frame_bindings() const;
+  void update_block(VkCommandBuffer cmd);  // records block_ into scene_buf_ when it changed
+  std::unique_ptr<Readback> take_readback();
+  void record_readback(VkCommandBuffer cmd, Readback& rb);
+  static Image read_image(const Readback& rb, int samples, int width, int height);
 };
 
 }  // namespace haze::render

@@ -37,7 +37,7 @@ void check_part_specs(const scene::Scene& s) {
 
 double total_gpu_ms(const Renderer& r) {
   double ms = 0;
-  for (const auto& [name, st] : r.pass_stats())
+  for (const auto& [name, st] : r.pass_stats_so_far())
     for (double t : st.ms) ms += t;
   return ms;
 }
@@ -59,50 +59,72 @@ RunSummary render_frames(gpu::Context& ctx, const scene::Scene& s, int first, in
                          std::unique_ptr<Renderer>& r) {
   using clock = std::chrono::steady_clock;
   RunSummary out;
-  for (int f = first; f <= last; ++f) {
-    auto t0 = clock::now();
-    scene::Scene fs = use_frame(ctx, r, s, f, f == first);
-    for (const auto& n : r->notes())
-      if (std::find(out.notes.begin(), out.notes.end(), n) == out.notes.end()) {
-        if (loop.on_note) loop.on_note(n);
-        out.notes.push_back(n);
-      }
-    auto t1 = clock::now();
-    if (loop.on_frame_start) loop.on_frame_start(f, first, last);
-    const double gpu_before = total_gpu_ms(*r);
-    const auto& passes = r->pass_stats();
-    size_t trace_before = passes.count("trace") ? passes.at("trace").ms.size() : 0;
-    if (fs.render.time_budget_s > 0) {
-      // One sample at a time until the budget is spent: each add_samples waits for its sample.
-      const auto until = t1 + std::chrono::duration_cast<clock::duration>(
-                                  std::chrono::duration<double>(fs.render.time_budget_s));
-      do r->add_samples(1);
-      while (clock::now() < until);
-    } else {
-      r->add_samples(fs.render.spp, loop.progress);
-    }
-    Image img = r->resolve();
-    auto t2 = clock::now();
+  // Frames stream: a frame's samples and resolve are submitted without waiting, and its image reaches the
+  // host (on_frame: writing its files) while the next frame renders. Per-frame GPU times are the passes
+  // recorded since the previous frame's image arrived (each submission's times arrive with it, in order).
+  double gpu_seen = 0;
+  size_t trace_seen = 0;
+  auto arrived = [&](int f, double setup_s, clock::time_point t1, Image img) {
+    const auto t2 = clock::now();
     if (loop.on_frame) loop.on_frame(f, img);
-    const auto& trace = r->pass_stats().at("trace").ms;
+    const double gpu_total = total_gpu_ms(*r);
+    const auto& passes = r->pass_stats_so_far();
+    const std::vector<double> none;
+    const auto& trace = passes.count("trace") ? passes.at("trace").ms : none;
     double trace_ms = 0;
-    for (size_t i = trace_before; i < trace.size(); ++i) trace_ms += trace[i];
-    const double gpu_ms = total_gpu_ms(*r) - gpu_before;
-    double fsetup = std::chrono::duration<double>(t1 - t0).count();
-    double frender = std::chrono::duration<double>(t2 - t1).count();
-    out.setup_s += fsetup;
+    for (size_t i = trace_seen; i < trace.size(); ++i) trace_ms += trace[i];
+    const double gpu_ms = gpu_total - gpu_seen;
+    gpu_seen = gpu_total;
+    trace_seen = trace.size();
+    const double frender = std::chrono::duration<double>(t2 - t1).count();
     out.render_s += frender;
     out.gpu_ms += gpu_ms;
     out.per_frame.push_back({{"frame", f},
-                             {"setup_s", fsetup},
+                             {"setup_s", setup_s},
                              {"render_s", frender},
                              {"gpu_ms", gpu_ms},
                              {"trace_gpu_ms", trace_ms},
-                             {"samples", r->samples()},
+                             {"samples", img.samples},
                              {"discarded", img.counters.discarded_json()},
                              {"clamped_squares", img.counters.clamped_squares},
                              {"tracking", img.counters.tracking_json()}});
     out.counters += img.counters;
+  };
+  // A frame that fails leaves earlier frames' images undelivered: they are dropped with the run (their
+  // callbacks refer to this function's locals).
+  try {
+    for (int f = first; f <= last; ++f) {
+      auto t0 = clock::now();
+      scene::Scene fs = use_frame(ctx, r, s, f, f == first);
+      if (f == first) {
+        gpu_seen = total_gpu_ms(*r);
+        const auto& passes = r->pass_stats_so_far();
+        trace_seen = passes.count("trace") ? passes.at("trace").ms.size() : 0;
+      }
+      for (const auto& n : r->notes())
+        if (std::find(out.notes.begin(), out.notes.end(), n) == out.notes.end()) {
+          if (loop.on_note) loop.on_note(n);
+          out.notes.push_back(n);
+        }
+      auto t1 = clock::now();
+      const double fsetup = std::chrono::duration<double>(t1 - t0).count();
+      out.setup_s += fsetup;
+      if (loop.on_frame_start) loop.on_frame_start(f, first, last);
+      if (fs.render.time_budget_s > 0) {
+        // One sample at a time until the budget is spent (at least one); two are in flight at most.
+        const auto until = t1 + std::chrono::duration_cast<clock::duration>(
+                                    std::chrono::duration<double>(fs.render.time_budget_s));
+        do r->add_samples(1);
+        while (clock::now() < until);
+      } else {
+        r->add_samples(fs.render.spp, loop.progress);
+      }
+      r->resolve_async([&arrived, f, fsetup, t1](Image img) { arrived(f, fsetup, t1, std::move(img)); });
+    }
+    r->finish();
+  } catch (...) {
+    if (r) r->discard();
+    throw;
   }
   // What the estimator dropped or clamped, said once for the run (per frame in per_frame).
   for (const std::string& n : counter_notes(out.counters)) {

@@ -225,18 +225,6 @@ Scene read_scene(const json& j, const ReadContext& ctx, const std::string& base_
   return s;
 }
 
-// Line and column of a byte offset, for parse errors.
-std::pair<size_t, size_t> line_column(const std::string& text, size_t byte) {
-  size_t line = 1, column = 1;
-  for (size_t i = 0; i < byte && i < text.size(); ++i) {
-    if (text[i] == '\n')
-      line++, column = 1;
-    else
-      column++;
-  }
-  return {line, column};
-}
-
 }  // namespace
 
 Scene from_json(const json& j, const std::string& origin, const std::string& base_dir) {
@@ -274,27 +262,7 @@ Scene load(const std::string& path, const std::vector<std::string>& overrides) {
   buffer << in.rdbuf();
   std::string text = buffer.str();
 
-  json j;
-  try {
-    // Comments are allowed: scene files are written by hand.
-    j = json::parse(text, nullptr, /*allow_exceptions=*/true, /*ignore_comments=*/true);
-  } catch (const json::parse_error& e) {
-    auto [line, column] = line_column(text, e.byte == 0 ? 0 : e.byte - 1);
-    // nlohmann's message starts with "[json.exception.parse_error.101] parse error at line L, column C: ";
-    // keep only the part after it, since the position is printed in our own format.
-    std::string what = e.what();
-    if (auto colon = what.find(": "); colon != std::string::npos) what = what.substr(colon + 2);
-    std::replace(what.begin(), what.end(), '\n', ' ');
-    throw Error(fmt::format("{}: line {}, column {}: malformed JSON: {}; fix the syntax there", path, line,
-                            column, what));
-  } catch (const json::exception& e) {
-    // Number overflow (1e999) is reported as out_of_range, without a position.
-    std::string what = e.what();
-    if (auto bracket = what.find("] "); bracket != std::string::npos) what = what.substr(bracket + 2);
-    throw Error(fmt::format("{}: malformed JSON: {}; fix the value", path, what));
-  }
-  if (std::string dup = duplicate_key(text); !dup.empty())
-    throw Error(fmt::format("{}: {}: the key appears twice in one object; keep one", path, dup));
+  json j = reflection::parse_json(text, path);
 
   ReadContext ctx{path, {}};
   for (const auto& o : overrides) ctx.overrides.emplace_back(apply_override_to<Scene>(j, o, path), o);

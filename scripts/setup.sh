@@ -20,6 +20,9 @@ PACKAGES=(
   libgtest-dev
   # `haze report`: figures (matplotlib), and the test that opens the report in headless Chromium
   python3-matplotlib python3-numpy chromium
+  # `haze view`: the window (GLFW on X11), Dear ImGui with its GLFW and Vulkan backends, and the X server
+  # the viewer's tests run it under (xvfb-run)
+  libglfw3-dev libimgui-dev xvfb xauth
 )
 
 BACKPORTS=/etc/apt/sources.list.d/haze-bookworm-backports.list

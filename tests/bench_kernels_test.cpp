@@ -101,11 +101,13 @@ TEST(BenchKernels, MaxRelativeDifference) {
 }
 
 TEST(BenchKernels, OnlyNamesParts) {
-  // Everything but the efficiency comparison (minutes), which runs when named.
+  // Everything but the efficiency comparison and the shaft sequence (minutes), which run when named.
   std::vector<std::string> all = bench::part_names();
-  all.erase(std::find(all.begin(), all.end(), "efficiency"));
+  for (const char* named_only : {"efficiency", "shafts"})
+    all.erase(std::find(all.begin(), all.end(), named_only));
   EXPECT_EQ(bench::parse_only(""), all);
   EXPECT_EQ(bench::parse_only("efficiency"), std::vector<std::string>{"efficiency"});
+  EXPECT_EQ(bench::parse_only("shafts"), std::vector<std::string>{"shafts"});
   EXPECT_EQ(bench::parse_only("volume_repr, first_frame"),
             (std::vector<std::string>{"first_frame", "volume_repr"}));
   try {

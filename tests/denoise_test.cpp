@@ -3,8 +3,10 @@
 // Thresholds were fixed before looking at results.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <functional>
+#include <glm/gtc/packing.hpp>
 #include <iostream>
 #include <random>
 
@@ -152,8 +154,9 @@ TEST(Svgf, StaticSceneConvergesFarBelowTheInputError) {
               << input / output << "x lower); mean luminance over frames 16-63 / the reference's "
               << mean_ratio << "\n";
     EXPECT_LT(output, input / 200) << m;  // measured 650x (adaptive), 715x (classic)
-    // Measured -1.0% (adaptive) and -2.1% (classic: its luminance edge stopping favours the darker side
-    // of skewed noise; the 2% goal is not met there yet, docs/denoising.md).
+    // Measured -1.0% (adaptive) and -2.1% (classic: its gather normalization loses energy on skewed noise,
+    // ClassicEnergyLossIsTheGatherNormalization; classic mode is Schied et al.'s by definition and misses the
+    // 2% goal, docs/denoising.md).
     EXPECT_LT(std::abs(mean_ratio - 1), std::string(m) == "adaptive" ? 0.02 : 0.03) << m;
   }
   EXPECT_EQ(context().validation_messages(), 0u);
@@ -190,8 +193,11 @@ TEST(Svgf, AdaptiveModeRecoversFromALightSwitchWithinFourFrames) {
               << "; light off: adaptive " << off[0] << ", classic " << off[1] << "\n";
     EXPECT_LE(on[0], 4) << k;
     EXPECT_LE(off[0], 4) << k;
-    EXPECT_GT(on[1], on[0]) << k;
-    EXPECT_GT(off[1], off[0]) << k;
+    // Classic mode blends with alpha = 0.2: from 0.25 to 1 the mean is within 10% once 0.75 * 0.8^n <= 0.1
+    // (n = 10), from 1 to 0.25 once 0.75 * 0.8^n <= 0.025 (n = 16); measured exactly that at both noise
+    // levels. Catches: a classic alpha of 0.25 (8 and 13 frames) or TAA lag added to it.
+    EXPECT_NEAR(on[1], 10, 1) << k;
+    EXPECT_NEAR(off[1], 16, 1) << k;
   }
   EXPECT_EQ(context().validation_messages(), 0u);
 }
@@ -383,6 +389,157 @@ TEST(Svgf, EachPercentileMechanismMattersWhenSwitchedOff) {
     EXPECT_NEAR(h_off, 1.0, 1e-3);
     EXPECT_GT(diff / H, 2e-3);  // measured 0.0054
   }
+  EXPECT_EQ(context().validation_messages(), 0u);
+}
+
+// Where classic mode's energy goes on the static sequence (-2.1% over frames 16-63, against the 2% goal):
+// the filter's gather normalization. With skewed noise, a luminance edge-stopping term keeps dark centres
+// from their bright neighbours more than the reverse, and dividing by each centre's own weights then loses
+// energy; without filter iterations classic mode keeps the mean, and adaptive mode's energy-conserving splat
+// normalization removes the loss. Classic mode stays Schied et al.'s gather by definition; its loss is larger
+// than adaptive mode's (-1.0%) because alpha = 0.2 averages about 9 frames where adaptive mode averages up to
+// 32, so its input stays more skewed. Catches: a splat pass that does not divide by the weight sums.
+TEST(Svgf, ClassicEnergyLossIsTheGatherNormalization) {
+  const int W = 64, H = 48;
+  Frame f = two_planes(W, H);
+  double ref_mean = 0;
+  for (size_t p = 0; p < f.reference.size(); ++p) ref_mean += glsl::luminance(f.expected(p));
+  auto mean_ratio = [&](const SvgfParams& p) {
+    Rig rig(W, H, p);
+    std::mt19937 rng(7);
+    double m = 0;
+    for (int t = 0; t < 64; ++t) {
+      SvgfResult r = rig.run(f, noisy(f, rng, 1.0));
+      double mean = 0;
+      for (const glm::vec3& c : r.colour) mean += glsl::luminance(c);
+      if (t >= 16) m += mean / ref_mean / 48;
+    }
+    return m - 1;
+  };
+  SvgfParams classic = mode("classic"), unfiltered = mode("classic"), splat, gather;
+  unfiltered.iterations = 0;
+  splat.normalization = "splat";
+  gather.normalization = "gather";
+  const double e_classic = mean_ratio(classic), e_unfiltered = mean_ratio(unfiltered);
+  const double e_gather = mean_ratio(gather), e_splat = mean_ratio(splat);
+  std::cout << "mean luminance error over frames 16-63: classic " << e_classic << ", classic without filter "
+            << e_unfiltered << "; adaptive gather " << e_gather << ", adaptive splat " << e_splat << "\n";
+  EXPECT_LT(e_classic, -0.007);  // measured -2.1%
+  EXPECT_GT(e_classic, -0.063);
+  EXPECT_LT(std::abs(e_unfiltered), 0.005);
+  EXPECT_LT(e_gather, -0.003);  // measured -1.0%
+  EXPECT_LT(std::abs(e_splat), 0.003);
+  EXPECT_EQ(context().validation_messages(), 0u);
+}
+
+// The splat normalization conserves the signal's sum exactly (to half-float rounding), on sparse noise where
+// gather loses a large share: one frame of 5% bright pixels over two planes, firefly clamp off. Catches:
+// weights that are not symmetric, or a pass that does not divide by the weight sums.
+TEST(Svgf, SplatNormalizationConservesTheSum) {
+  const int W = 64, H = 48;
+  Frame f = two_planes(W, H);
+  std::mt19937 rng(13);
+  std::uniform_real_distribution<float> u(0.f, 1.f);
+  std::vector<glm::vec3> x(f.reference.size());
+  double in = 0;
+  for (size_t p = 0; p < x.size(); ++p) {
+    x[p] = u(rng) < 0.05f ? f.reference[p] * 20.f : glm::vec3(0.f);
+    in += glsl::luminance(x[p]) * 0.5;  // remodulated by the planes' albedo 0.5
+  }
+  auto sum_of = [&](const std::string& normalization, const std::string& kernel) {
+    SvgfParams p;
+    p.normalization = normalization;
+    p.kernel = kernel;
+    p.firefly_bias = 1e30f;
+    Rig rig(W, H, p);
+    SvgfResult r = rig.run(f, x);
+    double out = 0;
+    for (const glm::vec3& c : r.colour) out += glsl::luminance(c);
+    return out / in - 1;
+  };
+  for (const char* kernel : {"5x5", "subsampled"}) {
+    const double splat = sum_of("splat", kernel), gather = sum_of("gather", kernel);
+    std::cout << kernel << ": output sum / input sum - 1: splat " << splat << ", gather " << gather << "\n";
+    EXPECT_LT(std::abs(splat), 1e-4) << kernel;  // measured 1.4e-5 (5x5) and 2.9e-5 (subsampled)
+    EXPECT_LT(gather, -0.25) << kernel;          // measured -75% and -68%
+  }
+  EXPECT_EQ(context().validation_messages(), 0u);
+}
+
+// The volume instance's own geometry (geometry "virtual_points", geometry.comp) against the same on the CPU:
+// the 3x3 median of the valid virtual point depths and, per axis, the one-sided difference of smaller
+// magnitude. A step between two depths with 10% of the pixels replaced by outliers; on the first frame the
+// accumulated depth is the median itself. Catches: the 3x3 mean instead of the median (outliers then leak
+// into every neighbour).
+TEST(Svgf, VirtualPointGeometryIsTheMedianDepthAndItsGradient) {
+  const int W = 32, H = 24;
+  const size_t pixels = size_t(W) * H;
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<float> u(0.f, 1.f);
+  std::vector<float> depth(pixels);
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x)
+      depth[size_t(y) * W + x] =
+          u(rng) < 0.1f ? 1.f + 9.f * u(rng) : (x < W / 2 ? 3.f : 6.f + 0.05f * float(y));
+  depth[5] = 0.f;  // no virtual point
+  std::vector<float> median(pixels, 0.f);
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      if (depth[size_t(y) * W + x] <= 0.f) continue;
+      std::vector<float> v;
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          const int qx = x + dx, qy = y + dy;
+          if (qx < 0 || qy < 0 || qx >= W || qy >= H) continue;
+          const float d = depth[size_t(qy) * W + qx];
+          if (d > 0.f) v.push_back(d);
+        }
+      std::sort(v.begin(), v.end());
+      median[size_t(y) * W + x] =
+          v.size() % 2 ? v[v.size() / 2] : 0.5f * (v[v.size() / 2 - 1] + v[v.size() / 2]);
+    }
+  auto at = [&](int x, int y) {
+    return x < 0 || y < 0 || x >= W || y >= H ? 0.f : median[size_t(y) * W + x];
+  };
+  auto one_sided = [](float z, float minus, float plus) {
+    if (minus <= 0 && plus <= 0) return 0.f;
+    if (minus <= 0) return plus - z;
+    if (plus <= 0) return z - minus;
+    return std::abs(plus - z) < std::abs(z - minus) ? plus - z : z - minus;
+  };
+
+  SvgfParams p = denoise::volume_defaults();
+  denoise::Svgf svgf(context(), "volume", p, W, H, false);
+  gpu::Buffer colour(context(), "test colour", "test", pixels * 12, "3 x f32");
+  gpu::Buffer motion(context(), "test motion", "test", pixels * 8, "2 x f32");
+  gpu::Buffer vp(context(), "test depth", "test", pixels * 4, "f32");
+  colour.upload(std::vector<float>(pixels * 3, 0.5f));
+  motion.fill_zero();
+  vp.upload(depth);
+  denoise::SvgfInputs in;
+  in.colour = &colour;
+  in.motion = &motion;
+  in.depth = &vp;
+  context().submit_and_wait([&](VkCommandBuffer cmd) { svgf.run(cmd, nullptr, in); });
+  ASSERT_NE(svgf.geometry_depth(), nullptr);
+  const std::vector<glm::uvec2> geo = svgf.geometry_depth()->download_vector<glm::uvec2>();
+  double worst_z = 0, worst_g = 0;
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      const size_t q = size_t(y) * W + x;
+      const float z = glm::uintBitsToFloat(geo[q].x);
+      const glm::vec2 g = glm::unpackHalf2x16(geo[q].y);
+      const float zc = median[q];
+      worst_z = std::max(worst_z, double(std::abs(z - zc)) / std::max(zc, 1e-3f));
+      if (zc <= 0) continue;
+      const glm::vec2 gc(one_sided(zc, at(x - 1, y), at(x + 1, y)),
+                         one_sided(zc, at(x, y - 1), at(x, y + 1)));
+      worst_g = std::max(worst_g, double(glm::length(g - gc)) / (1e-3 + glm::length(gc)));
+    }
+  std::cout << "geometry against the CPU: worst relative depth difference " << worst_z << ", gradient "
+            << worst_g << "\n";
+  EXPECT_LT(worst_z, 1e-6);  // the same float operations up to (Y z) / Y
+  EXPECT_LT(worst_g, 1.2e-3);  // half floats: measured 4.0e-4
   EXPECT_EQ(context().validation_messages(), 0u);
 }
 

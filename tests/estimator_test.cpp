@@ -247,6 +247,7 @@ struct SlabCase {
   double guide_p = -1;
   bool bounded = false;  // a VDB box clipped to the slab, against the homogeneous slab's reference
   double sigma = 0.8;
+  bool delta_tracked = false;  // the camera rays are delta-tracked: no sample may be guided
 };
 
 void check_sunlit_slab(const SlabCase& c) {
@@ -265,7 +266,7 @@ void check_sunlit_slab(const SlabCase& c) {
   render::Renderer r(context(), s);
   EXPECT_EQ(r.has_feature("GUIDING"), c.guide_p >= 0);
   render::Image img = render_checked(r, 256, "sunlit slab");
-  if (c.guide_p >= 0) expect_guided_share(img.counters, c.guide_p);
+  if (c.guide_p >= 0) expect_guided_share(img.counters, c.delta_tracked ? 0.0 : c.guide_p);
   std::function<double(double)> rho, F;
   double total;
   double top = 1.0;
@@ -364,6 +365,14 @@ TEST_P(GuidedSlab, VdbSunlitSlabIsUnbiased) {
 }
 TEST_P(GuidedSlab, AirlightWithEquiAngularIsUnbiased) {
   check_airlight("default", 0.5, GetParam());
+}
+// Camera rays through a heterogeneous majorant optical depth of 0.1 or more are delta-tracked and not
+// guided, whatever P (docs/guiding.md), and stay unbiased. Injected: a P_guide that ignores delta_cam gave
+// guided shares of 0.50 and 0.90 at P 0.5 and 0.9 (fails).
+TEST_P(GuidedSlab, DenseVdbRaysAreDeltaTrackedNotGuided) {
+  SlabCase c{"default", true, 0.5, GetParam()};
+  c.delta_tracked = true;
+  check_sunlit_slab(c);
 }
 INSTANTIATE_TEST_SUITE_P(P, GuidedSlab, ::testing::Values(0.0, 0.5, 0.9));
 

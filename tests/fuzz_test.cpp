@@ -32,7 +32,8 @@ namespace {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
-constexpr int kTimeoutSeconds = 60;           // a case that takes longer is a hang
+constexpr int kTimeoutSeconds =
+    150;  // a hang; lavapipe JITs the full-feature trace kernel in ~30 s, more under load
 constexpr long kAddressSpaceKiB = 4'000'000;  // ulimit -v: 4 GB, ten times a small render's need
 const std::string kSentinel = "an earlier output, never to be replaced by a failing run";
 

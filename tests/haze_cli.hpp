@@ -15,14 +15,19 @@ struct Result {
   std::string out;  // stdout and stderr together
 };
 
-inline Result run(const std::string& args) {
-  std::string cmd = fmt::format("{} {} 2>&1", HAZE_BIN, args);
+// A whole shell command line (a wrapper around haze, an environment), stdout and stderr together.
+inline Result run_command(const std::string& command) {
+  std::string cmd = command + " 2>&1";
   FILE* p = popen(cmd.c_str(), "r");
   std::string out;
   std::array<char, 4096> buf{};
   while (size_t n = fread(buf.data(), 1, buf.size(), p)) out.append(buf.data(), n);
   int status = pclose(p);
   return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, out};
+}
+
+inline Result run(const std::string& args) {
+  return run_command(fmt::format("{} {}", HAZE_BIN, args));
 }
 
 }  // namespace haze::test

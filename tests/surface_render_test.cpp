@@ -10,6 +10,7 @@
 #include <glm/gtc/matrix_transform.hpp>
 #include <iostream>
 
+#include "render/output.hpp"
 #include "shaders/glsl.hpp"
 #include "surfaces/embree_ref.hpp"
 #include "surfaces/mesh.hpp"
@@ -557,6 +558,46 @@ TEST(SurfaceRender, DarkEmitterKeepsItsRadianceThroughTheDenoiser) {
               << ", relative difference " << rel << "\n";
     EXPECT_LT(std::abs(rel), 4e-4) << c;  // measured 1.5e-4 (the noisy mean carries reflected sunlight)
   }
+  EXPECT_EQ(context().validation_messages(), 0u);
+}
+
+// The camera hits' emission is a layer (acc_emit, out_emit), a trace and resolve code path and a TAA
+// permutation only in scenes with emissive surfaces: without one there is no such buffer in the ledger, no
+// such binding in the kernels, no surface_emission EXR layer; adding an emitter to the same renderer brings
+// them. Catches: the layers allocated for every scene (as before this test).
+TEST(SurfaceRender, EmissionLayerOnlyInScenesWithEmitters) {
+  json j = {{"camera", {{"position", {0, 0, 3}}, {"target", {0, 0, 0}}, {"fov_y", 40}}},
+            {"surfaces", {{{"mesh", {{"kind", "plane"}, {"size", {10, 10}}}}, {"albedo", {0.5, 0.5, 0.5}}}}},
+            {"lights", {{"sun", {{"direction", {0.3, 0.5, 1}}, {"irradiance", 3}}}}},
+            {"render", {{"width", 16}, {"height", 16}}}};
+  auto traces_emission = [&](const render::Renderer& r) {
+    for (const auto& b : r.trace_decl().bindings())
+      if (b.name == "acc_emit") return true;
+    return false;
+  };
+  auto emission_buffers = [] {
+    int n = 0;
+    for (const auto& e : context().ledger().entries())
+      n += e.name.find("acc_emit") != std::string::npos || e.name.find("out_emit") != std::string::npos;
+    return n;
+  };
+  const int before = emission_buffers();
+  render::Renderer r(context(), make_scene(j));
+  r.add_samples(1);
+  render::Image img = r.resolve();
+  EXPECT_EQ(emission_buffers() - before, 0);
+  EXPECT_FALSE(traces_emission(r));
+  EXPECT_FALSE(img.surface_emission);
+  for (const auto& [name, plane] : render::exr_planes(img))
+    EXPECT_EQ(name.rfind("surface_emission", 0), std::string::npos);
+
+  j["surfaces"].push_back({{"mesh", {{"kind", "box"}, {"size", {0.5, 0.5, 0.5}}}}, {"emission", {1, 1, 1}}});
+  r.set_scene(make_scene(j), 1);
+  r.add_samples(1);
+  img = r.resolve();
+  EXPECT_EQ(emission_buffers() - before, 2);
+  EXPECT_TRUE(traces_emission(r));
+  EXPECT_TRUE(img.surface_emission);
   EXPECT_EQ(context().validation_messages(), 0u);
 }
 

@@ -516,7 +516,11 @@ TEST(VolumeMotion, VelocitySequenceMatchesTheAnalyticMotion) {
         {"media", {m}},
         {"lights", {{"sun", {{"direction", {0.3, 1, 0.2}}, {"irradiance", 4}}}}},
         {"render", {{"width", 80}, {"height", 60}, {"spp", 4}, {"fps", fps}, {"frames", "0:2"}}},
-        {"denoise", {{"volume", {{"enabled", true}}}, {"volume_motion", "virtual_points"}}},
+        // Geometry "surface": the points projected are then the last frame's own virtual point depths, which
+        // this test rebuilds them from (with the volume instance's own geometry it projects the depth it
+        // accumulated, docs/guiding.md).
+        {"denoise",
+         {{"volume", {{"enabled", true}, {"geometry", "surface"}}}, {"volume_motion", "virtual_points"}}},
         {"guiding", {{"enabled", true}}}};
     scene::Scene s = make_scene(j);
     std::unique_ptr<render::Renderer> r;

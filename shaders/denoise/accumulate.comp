@@ -39,6 +39,7 @@ layout(push_constant) uniform Push {
 pc;
 
 #include "common/rng.glsl"
+#define SVGF_GEO_ACCESS  // own geometry: the accumulated virtual point depth is written back into geo
 #include "denoise/svgf_common.glsl"
 
 // Block percentiles, bilinear between block centres.
@@ -81,6 +82,7 @@ float reprojection_weight(GPixel c, GPixel q) {
 struct History {
   vec3 colour;
   float m1, m2, n;
+  float m1_z;  // own geometry: m1 times the history's virtual point depth
 };
 
 History history_at(uint p, float weight) {
@@ -91,6 +93,11 @@ History history_at(uint p, float weight) {
   h.m1 = hist_moments[b] * weight;
   h.m2 = hist_moments[b + 1u] * weight;
   h.n = hist_moments[b + 2u] * weight;
+#ifdef SVGF_OWN_GEOMETRY
+  h.m1_z = h.m1 * prev_geo[p];
+#else
+  h.m1_z = 0.0f;
+#endif
   return h;
 }
 
@@ -99,6 +106,7 @@ void add(INOUT(History) a, History b) {
   a.m1 += b.m1;
   a.m2 += b.m2;
   a.n += b.n;
+  a.m1_z += b.m1_z;
 }
 
 bool inside(ivec2 q) {
@@ -140,7 +148,7 @@ void main() {
   bool found = false;
   History h;
   h.colour = vec3(0.0f);
-  h.m1 = h.m2 = h.n = 0.0f;
+  h.m1 = h.m2 = h.n = h.m1_z = 0.0f;
   if (pc.has_history != 0u) {
     vec2 size = vec2(W, H);
     if (CLASSIC == 0u && (any(lessThan(q, vec2(0.0f))) || any(greaterThanEqual(q, size)))) {
@@ -209,6 +217,7 @@ void main() {
         h.m1 /= n_valid;
         h.m2 /= n_valid;
         h.n /= n_valid;
+        h.m1_z /= n_valid;
       }
     } else {
       // Extended search: random offsets in a 5x5 window, the best soft match wins.
@@ -232,6 +241,9 @@ void main() {
   }
 
   float n = 1.0f, alpha = 1.0f;
+#ifdef SVGF_OWN_GEOMETRY
+  float m1_z = m1 * c.z;  // this frame's luminance times its (median-filtered) virtual point depth
+#endif
   if (found) {
     if (CLASSIC == 0u) {
       // Percentile-adaptive cap: history far outside the block's adaptivity range is outdated.
@@ -247,7 +259,16 @@ void main() {
     col = mix(h.colour, col, alpha);
     m1 = mix(h.m1, m1, alpha);
     m2 = mix(h.m2, m2, alpha);
+#ifdef SVGF_OWN_GEOMETRY
+    m1_z = mix(h.m1_z, m1_z, alpha);
+#endif
   }
+#ifdef SVGF_OWN_GEOMETRY
+  // The virtual point depth accumulates with the signal: the luminance-weighted mean of the history's depths,
+  // what the gradient, the filter and the next frame's reprojection (and forward projection) then use. Frames
+  // without a contribution weigh nothing; a pixel that never had one keeps this frame's depth.
+  if (m1 > 0.0f && m1_z > 0.0f) geo[p].x = floatBitsToUint(m1_z / m1);
+#endif
   out_colour[p] = pack_half4(vec4(col, n));
   out_moments[p] = uvec2(floatBitsToUint(m1), floatBitsToUint(m2));
 }

@@ -5,16 +5,29 @@
 // and either the full 5x5 kernel or the subsampled 6-tap one (axis taps at +-2 alternating x/y per
 // iteration, plus the four diagonals). Classic mode (Schied et al. 2017): 5x5, exp(-|dY| / (phi_l
 // sqrt(g3x3(var)) + eps) - |dz| / (phi_z |grad z . d| + eps)) max(0, n.n')^phi_n.
+//
+// Normalization (adaptive mode): gather divides each output by the sum of its own weights, as SVGF does;
+// on skewed noise the luminance term then keeps dark centres from their bright neighbours more than the
+// reverse and the filter loses energy. Splat (SVGF_SPLAT) uses symmetric weights and divides each input by
+// the sum of the weights it gives away, W_q, computed first (specialization constant WEIGHT_SUM): out_p =
+// sum_q w_pq x_q / W_q, so the sum over pixels of the output equals the input's exactly.
 #extension GL_GOOGLE_include_directive : require
 layout(local_size_x = 8, local_size_y = 8) in;
 layout(constant_id = 0) const uint CLASSIC = 0u;
 layout(constant_id = 1) const uint SUBSAMPLED = 0u;
+layout(constant_id = 2) const uint WEIGHT_SUM = 0u;
 
 #include "denoise/svgf_layout.glsl"
 
 layout(std430, binding = BINDING_in_colour) readonly buffer In {
   uvec2 in_colour[];  // rgb, sigma
 };
+#ifdef SVGF_SPLAT
+// Per pixel the sum of the symmetric weights it gives to its taps and itself (written by WEIGHT_SUM).
+layout(std430, binding = BINDING_weight_sum) buffer WeightSum {
+  float weight_sum[];
+};
+#endif
 layout(std430, binding = BINDING_out_colour) writeonly buffer Out {
   uvec2 out_colour[];
 };
@@ -51,8 +64,7 @@ float prefiltered_variance(ivec2 pix) {
 
 vec3 sum_c;
 float sum_v, sum_w;
-GPixel gc;
-float Yc, luminance_scale, fade_n, fade_z;
+FilterCentre centre;
 
 void tap(ivec2 pix, ivec2 o, float k) {
   int gap = 1 << pc.iteration;
@@ -61,16 +73,19 @@ void tap(ivec2 pix, ivec2 o, float k) {
   uint qp = uint(qi.y) * P.size.x + uint(qi.x);
   vec4 cq = unpack_half4(in_colour[qp]);
   GPixel q = g_load(qp);
-  float dY = abs(luminance(cq.rgb) - Yc);
+  float Yq = luminance(cq.rgb);
+  vec2 offset = vec2(o * gap);
   float w;
   if (CLASSIC != 0u) {
-    w = k * exp(-dY / luminance_scale) * depth_weight(gc, q, vec2(o * gap), P.filter_phi.y) *
-        pow(max(0.0f, dot(gc.n, q.n)), P.filter_phi.z);
+    w = k * exp(-abs(Yq - centre.Y) / centre.luminance_scale) *
+        depth_weight(centre.g, q, offset, P.filter_phi.y) * pow(max(0.0f, dot(centre.g.n, q.n)), P.filter_phi.z);
   } else {
-    float x = dY / luminance_scale;
-    float wz = mix(depth_weight(gc, q, vec2(o * gap), P.filter_phi.y), 1.0f, fade_z);
-    float wn = mix(smoothstep(P.filter_phi.z, 1.0f, dot(gc.n, q.n)), 1.0f, fade_n);
-    w = k * exp(-x * x) * wz * wn;
+#ifdef SVGF_SPLAT
+    w = k * filter_weight_symmetric(centre, filter_centre(q, Yq, cq.w), offset);
+    if (WEIGHT_SUM == 0u) w /= weight_sum[qp];  // the share of q's signal that reaches this pixel
+#else
+    w = k * filter_weight(centre, q, Yq, offset);
+#endif
   }
   sum_c += w * cq.rgb;
   sum_v += w * w * cq.w * cq.w;
@@ -82,15 +97,14 @@ void main() {
   if (pix.x >= P.size.x || pix.y >= P.size.y) return;
   uint p = pix.y * P.size.x + pix.x;
   vec4 c = unpack_half4(in_colour[p]);
-  gc = g_load(p);
-  Yc = luminance(c.rgb);
   float sigma = CLASSIC != 0u ? sqrt(prefiltered_variance(ivec2(pix))) : c.w;
-  luminance_scale = P.filter_phi.x * sigma + P.filter_phi.w;
-  fade_n = P.filter_fade.x > 0.0f ? smoothstep(0.0f, P.filter_fade.x, gc.z) : 0.0f;
-  fade_z = P.filter_fade.y > 0.0f ? smoothstep(0.0f, P.filter_fade.y, gc.z) : 0.0f;
+  centre = filter_centre(g_load(p), luminance(c.rgb), sigma);
 
   // The centre tap has weight KERNEL[0]^2 and is identical to itself.
   float k0 = KERNEL[0] * KERNEL[0];
+#ifdef SVGF_SPLAT
+  if (WEIGHT_SUM == 0u) k0 /= weight_sum[p];
+#endif
   sum_c = k0 * c.rgb;
   sum_v = k0 * k0 * c.w * c.w;
   sum_w = k0;
@@ -109,5 +123,14 @@ void main() {
       for (int dx = -2; dx <= 2; ++dx)
         if (dx != 0 || dy != 0) tap(ivec2(pix), ivec2(dx, dy), KERNEL[abs(dx)] * KERNEL[abs(dy)]);
   }
+#ifdef SVGF_SPLAT
+  if (WEIGHT_SUM != 0u) {
+    weight_sum[p] = sum_w;
+    return;
+  }
+  // The shares already carry their normalization.
+  out_colour[p] = pack_half4(vec4(sum_c, sqrt(sum_v)));
+#else
   out_colour[p] = pack_half4(vec4(sum_c / sum_w, sqrt(sum_v) / sum_w));
+#endif
 }

@@ -54,6 +54,40 @@ GPixel g_unpack(vec4 depth, vec4 normal, vec4 albedo) {
   return g;
 }
 
+#ifdef SVGF_OWN_GEOMETRY
+// The instance's own geometry (geometry.comp) instead of the surface G-buffer: per pixel the virtual point
+// depth and its gradient (geo: depth bits, packHalf2x16(gradient)) and the previous frame's depth. A virtual
+// point has no normal, albedo or instance: every normal test passes.
+#ifndef SVGF_GEO_ACCESS
+#define SVGF_GEO_ACCESS readonly
+#endif
+layout(std430, binding = BINDING_geo) SVGF_GEO_ACCESS buffer Geo {
+  uvec2 geo[];
+};
+layout(std430, binding = BINDING_prev_geo) SVGF_GEO_ACCESS buffer PrevGeo {
+  float prev_geo[];
+};
+
+GPixel g_point(float z, vec2 dz) {
+  GPixel g;
+  g.z = z;
+  g.dz = dz;
+  g.z_prev = 0.0f;
+  g.n = vec3(0.0f, 0.0f, 1.0f);
+  g.albedo = vec3(1.0f);
+  g.id = 0u;
+  return g;
+}
+
+GPixel g_load(uint p) {
+  uvec2 w = geo[p];
+  return g_point(uintBitsToFloat(w.x), unpackHalf2x16(w.y));
+}
+
+GPixel g_load_prev(uint p) {
+  return g_point(prev_geo[p], vec2(0.0f));
+}
+#else
 #ifdef BINDING_g_depth
 GPixel g_load(uint p) {
   return g_unpack(g_depth[p], g_normal[p], g_albedo[p]);
@@ -63,6 +97,7 @@ GPixel g_load(uint p) {
 GPixel g_load_prev(uint p) {
   return g_unpack(prev_g_depth[p], prev_g_normal[p], prev_g_albedo[p]);
 }
+#endif
 #endif
 
 // The albedo the surface signal was divided by (shaders/volume/trace.comp): 1 where no surface was hit.
@@ -76,6 +111,39 @@ float depth_weight(GPixel c, GPixel q, vec2 offset, float phi) {
   if (c.z <= 0.0f || q.z <= 0.0f) return c.z <= 0.0f && q.z <= 0.0f ? 1.0f : 0.0f;
   float predicted = abs(dot(c.dz, offset));
   return exp(-abs(c.z - q.z) / (phi * predicted + 1e-3f * c.z));
+}
+
+// A filter tap's centre as the edge-stopping terms see it (filter.comp): its geometry, luminance, the scale of
+// its luminance term (phi_l sigma + eps) and how far its depth and normal terms have faded.
+struct FilterCentre {
+  GPixel g;
+  float Y, luminance_scale, fade_n, fade_z;
+};
+
+FilterCentre filter_centre(GPixel g, float Y, float sigma) {
+  FilterCentre c;
+  c.g = g;
+  c.Y = Y;
+  c.luminance_scale = P.filter_phi.x * sigma + P.filter_phi.w;
+  c.fade_n = P.filter_fade.x > 0.0f ? smoothstep(0.0f, P.filter_fade.x, g.z) : 0.0f;
+  c.fade_z = P.filter_fade.y > 0.0f ? smoothstep(0.0f, P.filter_fade.y, g.z) : 0.0f;
+  return c;
+}
+
+// Adaptive mode's edge-stopping weight of tap q (luminance Yq, at offset o in pixels) for centre c, without the
+// kernel's own weight: exp(-(|dY| / (phi_l sigma + eps))^2) times the depth and normal terms, each faded
+// towards 1 with the centre's distance.
+float filter_weight(FilterCentre c, GPixel q, float Yq, vec2 o) {
+  float x = abs(Yq - c.Y) / c.luminance_scale;
+  float wz = mix(depth_weight(c.g, q, o, P.filter_phi.y), 1.0f, c.fade_z);
+  float wn = mix(smoothstep(P.filter_phi.z, 1.0f, dot(c.g.n, q.n)), 1.0f, c.fade_n);
+  return exp(-x * x) * wz * wn;
+}
+
+// The same weight made symmetric, the geometric mean of the weights each way: what the energy-conserving
+// (splat) normalization needs, w(c, q) = w(q, c).
+float filter_weight_symmetric(FilterCentre c, FilterCentre q, vec2 o) {
+  return sqrt(filter_weight(c, q.g, q.Y, o) * filter_weight(q, c.g, c.Y, -o));
 }
 
 #endif

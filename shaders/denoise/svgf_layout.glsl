@@ -6,7 +6,7 @@
 struct SvgfGpuParams {
   uvec4 size;        // width, height, percentile blocks x, y
   uvec4 layout_in;   // colour: float stride and offset per pixel; motion: stride, offset
-  uvec4 flags;       // x: remodulate by albedo (1) or not (0); y, z: emission stride, offset; w: has emission
+  uvec4 flags;       // x: remodulate by albedo (1) or not (0); y, z: emission stride, offset (SVGF_EMISSION)
   vec4 accumulate;   // x: a (alpha = max(1 - a, 1/n)), y: max history, z: adaptivity strength s, w: k_a
   vec4 percentiles;  // firefly low, up; adaptivity low, up (quantiles in [0, 1])
   vec4 firefly;      // x: bias, y: k_f, z: hard clamp (max luminance)
@@ -15,6 +15,8 @@ struct SvgfGpuParams {
   vec4 filter_phi;   // x: phi_l, y: phi_z, z: cos of phi_n (adaptive) or exponent (classic), w: epsilon
   vec4 filter_fade;  // x: zbias normals, y: zbias depth
   vec4 taa;  // x: blend (weight of the history), y: clamp (0 min/max, 1 mean +- gamma sigma), z: gamma
+  uvec4 geometry;  // own geometry (SVGF_OWN_GEOMETRY): x, y: the input depth's float stride and offset
+  vec4 variance_scale;  // x: 1 for filter_sigma "estimate" (else 0), y: the smallest alpha, max(1 - a, 1e-3)
 };
 
 // Per-pixel words of the half-float buffers: uvec2(packHalf2x16(r, g), packHalf2x16(b, a)).

@@ -11,10 +11,12 @@ layout(local_size_x = 8, local_size_y = 8) in;
 layout(std430, binding = BINDING_motion) readonly buffer Motion {
   float motion[];
 };
-// The emission kept out of the demodulated input (flags.w = 1), added back unfiltered.
+#ifdef SVGF_EMISSION
+// The emission kept out of the demodulated input (scenes with emissive surfaces), added back unfiltered.
 layout(std430, binding = BINDING_emission) readonly buffer Emission {
   float emission[];
 };
+#endif
 layout(std430, binding = BINDING_filtered) readonly buffer Filtered {
   uvec2 filtered[];  // demodulated rgb, sigma
 };
@@ -37,9 +39,12 @@ vec3 remodulation(uint p) {
 }
 
 vec3 emitted(uint p) {
-  if (P.flags.w == 0u) return vec3(0.0f);
+#ifdef SVGF_EMISSION
   uint i = p * P.flags.y + P.flags.z;
   return vec3(emission[i], emission[i + 1u], emission[i + 2u]);
+#else
+  return vec3(0.0f);
+#endif
 }
 
 vec3 current(uint p) {

@@ -1,7 +1,8 @@
 #version 460
 // SVGF pass 3: the variance estimate. Adaptive mode: luminance moments over a 5x5 neighbourhood with
 // weights h(|dx|) h(|dy|), h = [1, 2/3, 1/6], times normal and depth terms, blended with the temporal
-// moments by beta = clamp(b / n^f, 0, 1). Classic mode (Schied et al. 2017): a 7x7 bilateral estimate
+// moments by beta = clamp(b / n^f, 0, 1), optionally divided by the frames the colour averages (filter_sigma
+// "estimate"). Classic mode (Schied et al. 2017): a 7x7 bilateral estimate
 // while the history is shorter than 4 frames, else the temporal moments. Writes the filter's input
 // (colour, sigma) and the moments and history length kept for the next frame.
 #extension GL_GOOGLE_include_directive : require
@@ -79,6 +80,9 @@ void main() {
     float beta = clamp(P.variance.z / pow(n, P.variance.w), 0.0f, 1.0f);
     vec2 mb = mix(m, ms, beta);
     var = max(0.0f, mb.y - mb.x * mb.x);
+    // filter_sigma "estimate": the variance of the accumulated mean, not of one frame's sample: n frames
+    // averaged while alpha = 1/n, then the exponential average's (2 - alpha) / alpha.
+    if (P.variance_scale.x > 0.5f) var /= min(n, (2.0f - P.variance_scale.y) / P.variance_scale.y);
   }
   out_colour[p] = pack_half4(vec4(cn.rgb, sqrt(var)));
 }

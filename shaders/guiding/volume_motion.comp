@@ -8,6 +8,8 @@
 //    distances go to the lower source index: the result is deterministic.
 //  resolve (1), one thread per current pixel: decodes its winner and recomputes that point (a gather, so
 //    every pixel is written once), or falls back to the G-buffer's surface motion.
+//  backward (2), the baseline the forward projection is measured against: each current pixel's own virtual
+//    point (this frame's depth, in prev_depth) projected into the previous camera; camera motion only.
 #extension GL_GOOGLE_include_directive : require
 #extension GL_EXT_control_flow_attributes : require
 #extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
@@ -93,6 +95,26 @@ void main() {
   float d;
   vec3 v;
   vec2 q;
+  if (RESOLVE == 2u) {
+    d = prev_depth[p * pc.depth_stride + pc.depth_offset];
+    uint bits = floatBitsToUint(d);
+    vec2 size = vec2(pc.size), centre = vec2(pix) + 0.5f;
+    if (bits != 0u && bits < 0x7f800000u) {
+      vec3 X = scene.cam_position.xyz +
+               d * camera_direction(scene.cam_right.xyz, scene.cam_up.xyz, scene.cam_forward.xyz, centre, size);
+      v = X - scene.prev_cam_position.xyz;
+      if (dot(v, scene.prev_cam_forward.xyz) > 0.0f) {
+        q = camera_project_direction(scene.prev_cam_right.xyz, scene.prev_cam_up.xyz, scene.prev_cam_forward.xyz, v,
+                                     size);
+        if (all(greaterThanEqual(q, vec2(0.0f))) && all(lessThan(q, size))) {
+          motion[p] = vec4(q - centre, d - length(v), 1.0f);
+          return;
+        }
+      }
+    }
+    motion[p] = vec4(g_normal[p].zw, 0.0f, 0.0f);
+    return;
+  }
   // One call of project_point (one grid lookup site with HAZE_VELOCITY): the splat projects p, the resolve
   // its winner.
   uint64_t key = RESOLVE == 0u ? 0UL : keys[p];

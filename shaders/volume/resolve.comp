@@ -15,14 +15,16 @@ PIXEL_LAYER_IN(acc_surf);
 PIXEL_LAYER_IN(acc_demod);
 PIXEL_LAYER_IN(acc_demod2);
 PIXEL_LAYER_IN(acc_vp);
+#ifdef BINDING_acc_emit
 PIXEL_LAYER_IN(acc_emit);
+PIXEL_LAYER_OUT(out_emit);
+#endif
 PIXEL_LAYER_OUT(out_l);
 PIXEL_LAYER_OUT(out_vol);
 PIXEL_LAYER_OUT(out_surf);
 PIXEL_LAYER_OUT(out_var);
 PIXEL_LAYER_OUT(out_demod);
 PIXEL_LAYER_OUT(out_demod_m2);
-PIXEL_LAYER_OUT(out_emit);
 layout(std430, binding = BINDING_ldr) writeonly buffer LdrBuffer {
   uint ldr[];
 };
@@ -60,6 +62,8 @@ void main() {
   out_var[p] = vec4(var, 0.0f);
   out_demod[p] = vec4(acc_demod[p].rgb / n, 0.0f);
   out_demod_m2[p] = vec4(acc_demod2[p].rgb / n, 0.0f);
+#ifdef BINDING_acc_emit
   out_emit[p] = vec4(acc_emit[p].rgb / n, 0.0f);
+#endif
   ldr[p] = pack_srgb8(tonemap(mean * pc.exposure_scale, pc.tonemap));
 }

@@ -30,7 +30,9 @@ PIXEL_LAYER(acc_surf);
 PIXEL_LAYER(acc_surf2);
 PIXEL_LAYER(acc_demod);
 PIXEL_LAYER(acc_demod2);
-PIXEL_LAYER(acc_emit);
+#ifdef BINDING_acc_emit
+PIXEL_LAYER(acc_emit);  // scenes with emissive surfaces only
+#endif
 PIXEL_LAYER(acc_vp);
 layout(std430, binding = BINDING_counters) buffer Counters {
   uint counters[];  // COUNT_*, 64-bit each: low, high
@@ -106,8 +108,8 @@ struct LightSegment {
 };
 LightSegment light_segment(vec3 o, vec3 d, uint k, float t_s, bool clip) {
   LightSegment s;
-  vec2 ab = clip ? cone_clip(o, d, lights[k].position.xyz, lights[k].direction.xyz, lights[k].params.x, 0.0f, t_s)
-                 : vec2(0.0f, t_s);
+  GpuLight l = lights[k];
+  vec2 ab = clip ? cone_clip(o, d, l.position.xyz, l.direction.xyz, l.params.x, 0.0f, t_s) : vec2(0.0f, t_s);
   s.empty = !(ab.x < ab.y);
   s.t0 = ab.x;
   s.t1 = s.empty ? ab.x : ab.y;
@@ -346,7 +348,8 @@ void main() {
         if (base) t = mw.t;
         float q = p_base > 0.0f ? p_base * mw.sigma * truncated_exp_pdf_tau(mw.tau, tau_total) : 0.0f;
 #if HAZE_LOCAL
-        for (uint k = 0u; k < K; ++k) q += p_ea / float(K) * light_segment_pdf(light_segment(cam_o, cam_d, k, t_s, cone_clipped), t);
+        for (uint k = 0u; k < K; ++k)
+          q += p_ea / float(K) * light_segment_pdf(light_segment(cam_o, cam_d, k, t_s, cone_clipped), t);
 #endif
 #if HAZE_GUIDING
         q = (1.0f - P) * q + P * guide_mixture_pdf(gm, t);
@@ -400,7 +403,9 @@ void main() {
 #if HAZE_SURFACES
           GpuInstance inst = instances[cam_h.instance];
           L_surf = r.T * inst.emission.rgb;
-          E_surf = L_surf;
+#ifdef BINDING_acc_emit
+          E_surf = L_surf;  // else the scene has no emissive surface and E_surf stays 0 (folded away)
+#endif
           x = cam_o + cam_d * t_s;
           n = dot(cam_h.normal, cam_d) < 0.0f ? cam_h.normal : -cam_h.normal;
           ns = surface_normal(cam_h, n);
@@ -543,7 +548,9 @@ void main() {
 #if HAZE_VOLPATH
           if (camera_ray) {
             L_surf = beta * instances[walk_h.instance].emission.rgb;
+#ifdef BINDING_acc_emit
             E_surf = L_surf;
+#endif
             albedo0 = alb;
           }
 #endif
@@ -663,7 +670,9 @@ void main() {
   acc_surf2[pixel] += vec4(square_capped(L_surf, clamped), 0.0f);
   acc_demod[pixel] += vec4(demod, 0.0f);
   acc_demod2[pixel] += vec4(square_capped(demod, clamped), 0.0f);
+#ifdef BINDING_acc_emit
   acc_emit[pixel] += vec4(E_surf, 0.0f);
+#endif
   if (clamped) counter_add(COUNT_CLAMPED_SQUARES, 1u);
   acc_vp[pixel] += vec4(vp_wt, vp_w, vp_g, vp_gn);
 }
