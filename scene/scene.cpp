@@ -93,6 +93,14 @@ void validate(Surface& m, const Where& w) {
            "expected an object with a string \"kind\", like {\"kind\": \"box\"}, got " + m.mesh->dump());
 }
 
+// An all-zero multiplier would leave a medium that is nothing in every channel: say so instead.
+static void check_sigma_t_color(const glm::vec3& c, float sigma_t, const Where& w, const char* scale_key) {
+  if (sigma_t > 0.f && c.x == 0.f && c.y == 0.f && c.z == 0.f)
+    w.fail("sigma_t_color", fmt::format("is [0, 0, 0], an empty medium; give some channel a multiplier > 0, "
+                                        "or set {} to 0",
+                                        scale_key));
+}
+
 void validate(Medium& m, const Where& w) {
   if (!m.file.empty() && m.procedural) {
     w.fail("procedural", "cannot be used together with \"file\"; keep exactly one of the two");
@@ -111,6 +119,7 @@ void validate(Medium& m, const Where& w) {
   }
   if (m.grid.empty()) w.fail("grid", "must name a float grid, e.g. \"density\"");
   check_box(m.bounds_min, m.bounds_max, w);
+  check_sigma_t_color(m.sigma_t_color, m.density_scale, w, "density_scale");
   if (m.procedural && m.velocity)
     w.fail("velocity",
            "a procedural medium has no velocity grid; remove the key or use a .vdb file that has one");
@@ -129,6 +138,7 @@ void validate(Velocity& v, const Where& w) {
 
 void validate(Haze& h, const Where& w) {
   if (h.bounded) check_box(h.bounds_min, h.bounds_max, w);
+  check_sigma_t_color(h.sigma_t_color, h.sigma_t, w, "sigma_t");
 }
 
 void validate(Sun& s, const Where& w) {

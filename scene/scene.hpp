@@ -66,9 +66,10 @@ struct Medium {
   std::string file;
   std::optional<nlohmann::json> procedural;  // ...or a procedural spec {"kind": ...} checked by vdb/
   std::string grid = "density";
-  float density_scale = 1.f;  // >= 0
-  glm::vec3 albedo{0.9f};     // each in [0, 1]
-  float g = 0.f;              // HG anisotropy in [-1, 1]; the renderer clamps to +-0.99 and reports it
+  float density_scale = 1.f;     // >= 0
+  glm::vec3 albedo{0.9f};        // each in [0, 1]
+  glm::vec3 sigma_t_color{1.f};  // RGB multipliers of sigma_t (chromatic extinction), >= 0
+  float g = 0.f;                 // HG anisotropy in [-1, 1]; the renderer clamps to +-0.99 and reports it
   Emission emission;
   Transform transform;
   // World-space box the medium is clipped to: zero outside it, exactly (no trilinear fringe beyond a
@@ -90,7 +91,8 @@ struct Surface {
 
 // Homogeneous fog, everywhere or inside an axis-aligned box.
 struct Haze {
-  float sigma_t = 0.05f;  // extinction per world unit, >= 0
+  float sigma_t = 0.05f;         // extinction per world unit, >= 0
+  glm::vec3 sigma_t_color{1.f};  // RGB multipliers of sigma_t (chromatic extinction), >= 0
   glm::vec3 albedo{0.9f};
   float g = 0.f;
   bool bounded = false;
@@ -272,6 +274,8 @@ void reflect(V& v, Medium& m) {
   v.field("grid", m.grid, "name of the float density grid");
   v.field("density_scale", m.density_scale, Range::at_least(0), "sigma_t = density_scale * density");
   v.field("albedo", m.albedo, Range{0, 1}, "single-scattering albedo per RGB channel");
+  v.field("sigma_t_color", m.sigma_t_color, Range{0, 1e6},
+          "RGB multipliers of sigma_t (chromatic extinction); not all 0 while density_scale > 0");
   v.field("g", m.g, Range{-1, 1}, "Henyey-Greenstein anisotropy (clamped to +-0.99 by the renderer)");
   v.field("emission", m.emission, "emission from a grid");
   v.field("transform", m.transform, "placement of the volume in the world");
@@ -302,6 +306,8 @@ void reflect(V& v, Surface& m) {
 template <class V>
 void reflect(V& v, Haze& h) {
   v.field("sigma_t", h.sigma_t, Range::at_least(0), "extinction coefficient per world unit");
+  v.field("sigma_t_color", h.sigma_t_color, Range{0, 1e6},
+          "RGB multipliers of sigma_t (chromatic extinction); not all 0 while sigma_t > 0");
   v.field("albedo", h.albedo, Range{0, 1}, "single-scattering albedo per RGB channel");
   v.field("g", h.g, Range{-1, 1}, "Henyey-Greenstein anisotropy");
   v.field("bounded", h.bounded, "false: fills all space; true: only the box bounds_min..bounds_max");

@@ -116,6 +116,51 @@ TEST(EquiAngular, SamplesFollowTheirPdf) {
   }
 }
 
+// cone_clip against a brute-force scan of the line: every point strictly inside the returned interval is in
+// the cone, every point outside it is not (up to 1e-3 of the segment's length around the ends). Random
+// lines, apexes, axes and cone angles from 1 to 90 degrees, and lines through the apex.
+// Injected: the front nappe taken as the near piece when A > 0 (a = lo instead of hi): fails at line 3.
+TEST(ConeClip, MatchesABruteForceScan) {
+  std::mt19937 gen(17);
+  std::uniform_real_distribution<float> U(-1.f, 1.f);
+  auto unit = [&] {
+    vec3 v;
+    do v = vec3(U(gen), U(gen), U(gen));
+    while (length(v) < 0.1f || length(v) > 1.f);
+    return normalize(v);
+  };
+  int checked = 0, hits = 0;
+  for (int i = 0; i < 2000; ++i) {
+    vec3 p = 2.f * vec3(U(gen), U(gen), U(gen)), axis = unit(), o = 3.f * vec3(U(gen), U(gen), U(gen));
+    vec3 d = i % 10 == 0 ? normalize(p - o) : unit();  // every tenth line through the apex
+    float angle = (i % 7 == 0) ? 90.f : 1.f + 89.f * (0.5f + 0.5f * U(gen));
+    float c = std::cos(angle * 3.14159265f / 180.f);
+    const float t0 = 0.f, t1 = 8.f;
+    vec2 ab = cone_clip(o, d, p, axis, c, t0, t1);
+    bool any_inside = false;
+    for (int k = 0; k <= 4000; ++k) {
+      float t = t0 + (t1 - t0) * float(k) / 4000.f;
+      vec3 v = o + t * d - p;
+      double inside = double(dot(v, axis)) - double(c) * double(length(v));
+      if (std::abs(inside) < 1e-4) continue;  // on the surface: rounding decides
+      bool in_interval = ab.x < ab.y && t > ab.x + 4e-3f && t < ab.y - 4e-3f;
+      bool out_interval = !(ab.x < ab.y) || t < ab.x - 4e-3f || t > ab.y + 4e-3f;
+      if (in_interval)
+        ASSERT_GT(inside, 0.0) << "line " << i << " t " << t << " [" << ab.x << ", " << ab.y << "]";
+      if (out_interval)
+        ASSERT_LT(inside, 0.0) << "line " << i << " t " << t << " [" << ab.x << ", " << ab.y << "]";
+      any_inside = any_inside || inside > 0;
+      ++checked;
+    }
+    hits += any_inside;
+  }
+  EXPECT_GT(hits, 300);  // the lines meet cones often enough for the scan to mean something
+  // No cone (a point light): the whole segment.
+  vec2 all = cone_clip(vec3(0.f), vec3(0.f, 0.f, 1.f), vec3(1.f), vec3(0.f, -1.f, 0.f), -2.f, 0.5f, 3.f);
+  EXPECT_EQ(all.x, 0.5f);
+  EXPECT_EQ(all.y, 3.f);
+}
+
 TEST(TruncatedExponential, SamplesFollowTheirPdf) {
   for (float tau_total : {1e-5f, 0.3f, 2.f, 40.f}) {
     uint state = rng_init(9u, 2u, uint(tau_total * 100));

@@ -138,10 +138,10 @@ fs::path cache_file(const ShaderCompiler& c, const ShaderPermutation& p) {
 }
 
 const Defines kTraceDefines = {{"HAZE_HETERO", "1"}, {"HAZE_SUN", "1"}, {"HAZE_SURFACES", "1"}};
-const Defines kAllTraceFeatures = {{"HAZE_HETERO", "1"},   {"HAZE_HAZE", "1"},  {"HAZE_EMISSION", "1"},
-                                   {"HAZE_SUN", "1"},      {"HAZE_LOCAL", "1"}, {"HAZE_MULTI", "1"},
-                                   {"HAZE_SURFACES", "1"}, {"HAZE_AREA", "1"},  {"HAZE_TEXTURE", "1"},
-                                   {"HAZE_GUIDING", "1"}};
+const Defines kAllTraceFeatures = {{"HAZE_HETERO", "1"},   {"HAZE_HAZE", "1"},     {"HAZE_EMISSION", "1"},
+                                   {"HAZE_SUN", "1"},      {"HAZE_LOCAL", "1"},    {"HAZE_MULTI", "1"},
+                                   {"HAZE_SURFACES", "1"}, {"HAZE_AREA", "1"},     {"HAZE_TEXTURE", "1"},
+                                   {"HAZE_GUIDING", "1"},  {"HAZE_CHROMATIC", "1"}};
 
 // ---- hashes ----
 

@@ -94,6 +94,7 @@ DeviceMedia build_media(const scene::Scene& s, const DeviceMedia* previous) {
     glm::dmat4 i2w = o2w * density.index_to_world;
     g.world_to_index = glm::mat4(glm::inverse(i2w));
     g.albedo_g = glm::vec4(m.albedo, clamp_g(m.g, where, dm.notes));
+    g.sigma_t_color = glm::vec4(m.sigma_t_color, 0);
     glm::dvec3 lo, hi;
     world_box(density, i2w, lo, hi);
     // A bounded medium is zero outside its box: the same test clips it exactly.
@@ -260,6 +261,16 @@ void Media::update(const scene::Scene& s) {
   haze_params_ = s.haze;
   emission_ = std::any_of(s.media.begin(), s.media.end(),
                           [](const scene::Medium& m) { return m.emission.mode != "none"; });
+  // Chromatic only where some medium's multipliers are not all 1; grey scenes keep the grey kernel.
+  color_max_ = 1.f;
+  chromatic_ = false;
+  auto add_color = [&](glm::vec3 c) {
+    chromatic_ = chromatic_ || c != glm::vec3(1.f);
+    color_max_ = std::max({color_max_, c.x, c.y, c.z});
+  };
+  if (haze_) add_color(s.haze->sigma_t_color);
+  for (const auto& m : s.media) add_color(m.sigma_t_color);
+  if (!chromatic_) color_max_ = 1.f;
   grids_.update(ctx_, host_, hetero_);
   gpu::keep_uploaded(ctx_, table_, hetero_, "media", "scene data", host_.media, "GpuMedium");
   const auto& maj = host_.majorant;
@@ -285,6 +296,7 @@ std::vector<std::string> Media::notes() const {
 void Media::declare(gpu::KernelDecl& k) const {
   if (hetero_) k.define("HAZE_HETERO");
   if (haze_) k.define("HAZE_HAZE");
+  if (chromatic_) k.define("HAZE_CHROMATIC");
   if (!hetero_) return;
   if (emission_) k.define("HAZE_EMISSION");
   k.buffer("grids", grids_.table().size(), 8);
@@ -308,7 +320,9 @@ void Media::fill(glsl::GpuScene& g) const {
     glm::vec3 hi = h.bounded ? h.bounds_max : glm::vec3(glsl::T_INF);
     g.haze_min = glm::vec4(lo, h.sigma_t);
     g.haze_max = glm::vec4(hi, 0);
+    g.haze_sigma_t_color = glm::vec4(h.sigma_t_color, 0);
   }
+  g.haze_sigma_t_color.w = color_max_;
   g.maj_res = glm::uvec4(glm::max(host_.majorant.res, glm::ivec3(0)), kMaxTrackingSteps);
   g.maj_min = glm::vec4(host_.majorant.world_min, 0);
   g.maj_max = glm::vec4(host_.majorant.world_max, 0);

@@ -72,7 +72,8 @@ class DeviceGrids {
 };
 
 // The media on the device. Features: HAZE_HETERO (VDB media: the grid table, media table, majorant grid),
-// HAZE_HAZE (homogeneous haze, in the scene block only), HAZE_EMISSION (an emitting VDB medium). Every
+// HAZE_HAZE (homogeneous haze, in the scene block only), HAZE_EMISSION (an emitting VDB medium),
+// HAZE_CHROMATIC (some medium's sigma_t_color is not [1, 1, 1]: per-channel extinction). Every
 // NanoVDB grid is a buffer of its own, read through its device address (DeviceGrids), so the grids
 // together may exceed maxStorageBufferRange. How the media moved since the previous frame (transforms and
 // velocity grids) is the volume motion pass's input (guiding/volume_motion.hpp), kept only while wanted.
@@ -110,6 +111,8 @@ class Media : public gpu::DeviceData {
   gpu::Context& ctx_;
   DeviceMedia host_;
   bool hetero_ = false, haze_ = false, emission_ = false;
+  bool chromatic_ = false;  // HAZE_CHROMATIC: some medium's sigma_t_color is not [1, 1, 1]
+  float color_max_ = 1.f;   // the largest multiplier over media and channels
   std::optional<scene::Haze> haze_params_;
   DeviceVelocity velocity_;
   DeviceGrids grids_, velocity_grids_;

@@ -91,6 +91,55 @@ HAZE_INLINE float equi_angular_pdf(EquiAngular e, float t) {
   return e.D / (max(e.theta_b - e.theta_a, 1e-20f) * (e.D * e.D + x * x));
 }
 
+// The part [a, b] of [t0, t1] of the line o + t d (d unit) inside the cone with apex p, unit axis `axis` and
+// cos_outer c: dot(x - p, axis) >= c |x - p| (a spot light's cone, c >= 0 up to rounding; c < -1: no cone,
+// [t0, t1] itself). The cone is convex, so the part is one interval; a >= b when the line misses it. From
+// f(t) = (wa + t da)^2 - c^2 |w + t d|^2 >= 0 (the double cone) on the half-line wa + t da >= 0 (its front).
+HAZE_INLINE vec2 cone_clip(vec3 o, vec3 d, vec3 p, vec3 axis, float c, float t0, float t1) {
+  if (c < -1.0f) return vec2(t0, t1);
+  c = max(c, 0.0f);
+  vec3 w = o - p;
+  float wa = dot(w, axis), da = dot(d, axis);
+  float c2 = c * c;
+  float A = da * da - c2;
+  float B = 2.0f * (wa * da - c2 * dot(w, d));
+  float C = wa * wa - c2 * dot(w, w);
+  // The front half-line [h0, h1].
+  float h0 = -T_INF, h1 = T_INF;
+  if (da > 0.0f)
+    h0 = -wa / da;
+  else if (da < 0.0f)
+    h1 = -wa / da;
+  else if (wa < 0.0f)
+    return vec2(1.0f, 0.0f);
+  float a = -T_INF, b = T_INF;
+  float disc = B * B - 4.0f * A * C;
+  if (abs(A) < 1e-7f * c2 + 1e-30f) {
+    // Parallel to the cone's surface: f is linear, B t + C >= 0.
+    if (B > 0.0f)
+      a = -C / B;
+    else if (B < 0.0f)
+      b = -C / B;
+    else if (C < 0.0f)
+      return vec2(1.0f, 0.0f);
+  } else if (disc < 0.0f) {
+    if (A < 0.0f) return vec2(1.0f, 0.0f);  // f < 0 everywhere
+  } else {
+    float q = -0.5f * (B + (B >= 0.0f ? sqrt(disc) : -sqrt(disc)));
+    float r1 = q != 0.0f ? C / q : 0.0f, r2 = q / A;
+    float lo = min(r1, r2), hi = max(r1, r2);
+    if (A < 0.0f) {
+      a = lo;  // between the roots
+      b = hi;
+    } else if (da > 0.0f) {
+      a = hi;  // the front nappe is the far piece
+    } else {
+      b = lo;
+    }
+  }
+  return vec2(max(max(a, h0), t0), min(min(b, h1), t1));
+}
+
 // Exponential in optical depth truncated to [0, tau_total]: the majorant free-flight distribution
 // restricted to a segment, so no sample is wasted beyond it.
 HAZE_INLINE float truncated_exp_sample_tau(float tau_total, float u) {

@@ -13,6 +13,7 @@ struct GpuMedium {
   vec4 world_max;  // w: emission scale
   uvec4 grid;     // x: density grid, y: emission grid (indices into the binding "grids"), z: emission mode
   vec4 emission;  // x: kelvin per grid unit (blackbody)
+  vec4 sigma_t_color;  // rgb multipliers of sigma_t (read by the CHROMATIC variant only)
 };
 
 struct GpuScene {
@@ -41,6 +42,9 @@ struct GpuScene {
   vec4 guide;        // x: P, y: min width, z: prior width, w: prior count
   uvec4 guide_grid;  // x, y: vertices across and down, z: K states per vertex, w: C candidates
   vec4 guide_learn;  // x: vertex spacing in pixels, y: learn (0/1), z: max count N, w: min alpha
+  // Chromatic media (read by the CHROMATIC variant only): rgb the haze's sigma_t multipliers, w the largest
+  // multiplier of any medium and channel (the majorants' factor).
+  vec4 haze_sigma_t_color;
 };
 
 // Per-pixel data lives in vec4 layers, one buffer each (gpu/pixel_layers.hpp), so that every buffer of a

@@ -15,13 +15,37 @@ layout(std430, binding = BINDING_majorant) readonly buffer MajorantBuffer {
 };
 #endif
 
+// A transmittance or tracking weight: one per channel in chromatic media (HAZE_CHROMATIC), else one.
+#if HAZE_CHROMATIC
+#define Trans vec3
+HAZE_INLINE float trans_max(vec3 T) { return max(T.x, max(T.y, T.z)); }
+HAZE_INLINE float trans_mean(vec3 T) { return (T.x + T.y + T.z) * (1.0f / 3.0f); }
+#else
+#define Trans float
+HAZE_INLINE float trans_max(float T) { return T; }
+HAZE_INLINE float trans_mean(float T) { return T; }
+#endif
+
 struct MediumSample {
-  float sigma_t;        // total extinction
+  float sigma_t;        // total extinction (chromatic: the sum of the components' unscaled sigma_t)
   float sigma_control;  // the homogeneous haze part of sigma_t (tracked in closed form)
   vec3 albedo;          // of the chosen component (chosen with probability sigma_t,i / sigma_t)
   float g;
   vec3 emit;  // (1 - albedo_i) * Le_i of the chosen component: E[sigma_t * emit] = sigma_a * Le
+#if HAZE_CHROMATIC
+  vec3 sigma_c;  // sigma_t per channel, exactly: sum over components of sigma_t,i * sigma_t_color_i
+  vec3 color;    // the chosen component's sigma_t_color: E[sigma_t * color * X_i] = sum_i sigma_t,i,c X_i
+#endif
 };
+
+// Transmittance of a haze optical depth tau (of the unscaled sigma_t) per channel.
+HAZE_INLINE Trans haze_transmittance(float tau) {
+#if HAZE_CHROMATIC
+  return exp(-tau * scene.haze_sigma_t_color.rgb);
+#else
+  return exp(-tau);
+#endif
+}
 
 HAZE_INLINE vec2 ray_box(vec3 o, vec3 d, vec3 bmin, vec3 bmax) {
   vec3 inv = 1.0f / d;  // +-inf for axis-parallel rays is what the slab test wants
@@ -61,8 +85,16 @@ MediumSample haze_at(vec3 x) {
   ms.albedo = vec3(0.0f);
   ms.g = 0.0f;
   ms.emit = vec3(0.0f);
+#if HAZE_CHROMATIC
+  ms.sigma_c = vec3(0.0f);
+  ms.color = vec3(1.0f);
+#endif
 #if HAZE_HAZE
   if (inside_box(x, scene.haze_min.xyz, scene.haze_max.xyz)) {
+#if HAZE_CHROMATIC
+    ms.sigma_c = scene.haze_min.w * scene.haze_sigma_t_color.rgb;
+    ms.color = scene.haze_sigma_t_color.rgb;
+#endif
     ms.sigma_t = scene.haze_min.w;
     ms.sigma_control = scene.haze_min.w;
     ms.albedo = scene.haze_albedo_g.rgb;
@@ -86,6 +118,9 @@ MediumSample sample_medium(vec3 x, float u) {
     float s = media[m].world_min.w * grid_trilinear(media[m].grid.x, p);
     if (!(s > 0.0f) || isinf(s)) continue;
     ms.sigma_t += s;
+#if HAZE_CHROMATIC
+    ms.sigma_c += s * media[m].sigma_t_color.rgb;
+#endif
     float p_take = s / ms.sigma_t;
     if (u < p_take) {
       chosen = int(m);
@@ -98,6 +133,9 @@ MediumSample sample_medium(vec3 x, float u) {
   if (chosen >= 0) {
     ms.albedo = media[chosen].albedo_g.rgb;
     ms.g = media[chosen].albedo_g.w;
+#if HAZE_CHROMATIC
+    ms.color = media[chosen].sigma_t_color.rgb;
+#endif
 #if HAZE_EMISSION
     uint mode = media[chosen].grid.z;
     if (mode != 0u) {
@@ -258,7 +296,7 @@ const bool TRACK_CONTROL = true;  // the haze's transmittance in closed form (re
 #endif
 
 struct TrackResult {
-  float T;
+  Trans T;  // RATIO: the transmittance estimate; DELTA: 1 (grey) or the spectral tracking weight (chromatic)
   bool hit;
   float t;
   MediumSample ms;  // at the collision (DELTA) or at t1 (RATIO with eval_end)
@@ -273,13 +311,37 @@ HAZE_INLINE bool above_majorant(float sigma, float sigma_maj) {
   return sigma > sigma_maj * 1.00001f;
 }
 
+#if HAZE_CHROMATIC
+// Spectral tracking (Kutz et al. 2017) at a tentative collision of delta tracking in chromatic media: real
+// with probability P_r = max_c(sigma_c W_c) / (max_c(sigma_c W_c) + max_c(sigma_n,c W_c)), null otherwise
+// (sigma_n,c = sigma_maj - sigma_c), the weight W multiplied by (sigma_event,c / sigma_maj) / P_event, so
+// that E[W_c at the collision] is channel c's own collision density. The real event's sigma_c is the
+// chosen component's sigma_t * color (its choice with probability sigma_t,i / sigma_t, medium.glsl above).
+// A path whose weights are all 0 ends without a collision (W = 0).
+bool spectral_collision(INOUT(vec3) W, MediumSample ms, float sigma_maj, INOUT(uint) rng) {
+  vec3 sigma_n = max(vec3(sigma_maj) - ms.sigma_c, vec3(0.0f));
+  float P_r = trans_max(ms.sigma_c * W), P_n = trans_max(sigma_n * W);
+  if (!(P_r + P_n > 0.0f)) {
+    W = vec3(0.0f);
+    return false;
+  }
+  float p_r = P_r / (P_r + P_n);
+  if (rng_next(rng) < p_r) {
+    W *= ms.sigma_t * ms.color / (sigma_maj * p_r);
+    return true;
+  }
+  W *= sigma_n / (sigma_maj * (1.0f - p_r));
+  return false;
+}
+#endif
+
 // Ratio tracking (default estimator) uses the haze as a control: its transmittance is taken in closed form
 // and only the heterogeneous residual is tracked (Novak et al. 2014). Each loop iteration does at most one
 // lookup. rr, rr_survive: Russian roulette on T below rr, surviving with rr_survive.
 TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, float rr, float rr_survive,
                   INOUT(uint) rng) {
   TrackResult r;
-  r.T = 1.0f;
+  r.T = Trans(1.0f);
   r.hit = false;
   r.t = t1;
   r.ms.sigma_t = 0.0f;
@@ -287,6 +349,10 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
   r.ms.albedo = vec3(0.0f);
   r.ms.g = 0.0f;
   r.ms.emit = vec3(0.0f);
+#if HAZE_CHROMATIC
+  r.ms.sigma_c = vec3(0.0f);
+  r.ms.color = vec3(1.0f);
+#endif
   r.lookups = 0u;
   r.nulls = 0u;
   r.capped = false;
@@ -308,6 +374,10 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
         if (!maj_next(it, s_het, s_haze, ta, tb)) break;
         t = ta;
         sigma_maj = control ? s_het : s_het + s_haze;
+#if HAZE_CHROMATIC
+        // The majorant of every channel: the grey one times the largest multiplier.
+        sigma_maj *= scene.haze_sigma_t_color.w;
+#endif
         if (control) tau_control += s_haze * (tb - ta);
       }
       float dt = tb - t;
@@ -325,40 +395,54 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
     MediumSample ms = sample_medium(x, rng_next(rng));
     r.lookups += 1u;
     // The part of sigma_t this query's majorant bounds (the control is exact).
+#if HAZE_CHROMATIC
+    vec3 sigma = control ? ms.sigma_c - ms.sigma_control * scene.haze_sigma_t_color.rgb : ms.sigma_c;
+    r.violated = r.violated || above_majorant(trans_max(sigma), sigma_maj);
+#else
     float sigma = control ? ms.sigma_t - ms.sigma_control : ms.sigma_t;
     r.violated = r.violated || above_majorant(sigma, sigma_maj);
+#endif
     if (at_end) {
       r.ms = ms;
       break;
     }
     if (mode == TRACK_RATIO) {
       // pbrt-v4 clamps the null-collision weight at 0 too; a violation is counted above.
-      r.T *= clamp(1.0f - sigma / sigma_maj, 0.0f, 1.0f);
-      if (r.T < rr) {
+      // Chromatic: ratio tracking per channel under the common majorant.
+      r.T *= clamp(Trans(1.0f) - sigma / sigma_maj, 0.0f, 1.0f);
+      if (trans_max(r.T) < rr) {
         // Russian roulette keeps the estimate unbiased while bounding the walk.
         if (rng_next(rng) >= rr_survive) {
-          r.T = 0.0f;
+          r.T = Trans(0.0f);
           break;
         }
         r.T /= rr_survive;
       }
-    } else if (rng_next(rng) * sigma_maj < ms.sigma_t) {
+    }
+#if HAZE_CHROMATIC
+    else if (spectral_collision(r.T, ms, sigma_maj, rng)) {
+#else
+    else if (rng_next(rng) * sigma_maj < ms.sigma_t) {
+#endif
       r.hit = true;
       r.t = t;
       r.ms = ms;
       break;
     } else {
       r.nulls += 1u;
+#if HAZE_CHROMATIC
+      if (mode == TRACK_DELTA && trans_max(r.T) == 0.0f) break;  // no channel carries anything further
+#endif
     }
     tau_left = -log_one_minus(rng_next(rng));
     // Bounded work per query: a pathological majorant cannot hang the dispatch. What was cut is counted.
     if (++steps >= scene.maj_res.w) {
-      r.T = 0.0f;
+      r.T = Trans(0.0f);
       r.capped = true;
       break;
     }
   }
-  if (control) r.T *= exp(-tau_control);
+  if (control) r.T *= haze_transmittance(tau_control);
   return r;
 }
 

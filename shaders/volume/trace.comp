@@ -97,6 +97,30 @@ vec3 square_capped(vec3 x, inout bool clamped) {
   return min(s, vec3(SQUARE_MAX));
 }
 
+#if HAZE_LOCAL
+// Equi-angular sampling towards local light k on [0, t_s]; a spot's restricted to the part of the ray inside
+// its cone (it lights nothing elsewhere), when q_base covers the rest (clip): the sample and its pdf use the
+// same segment. `empty`: the ray misses the cone, the light yields no sample and its pdf is 0.
+struct LightSegment {
+  EquiAngular e;
+  float t0, t1;
+  bool empty;
+};
+LightSegment light_segment(vec3 o, vec3 d, uint k, float t_s, bool clip) {
+  LightSegment s;
+  GpuLight l = lights[k];
+  vec2 ab = clip ? cone_clip(o, d, l.position.xyz, l.direction.xyz, l.params.x, 0.0f, t_s) : vec2(0.0f, t_s);
+  s.empty = !(ab.x < ab.y);
+  s.t0 = ab.x;
+  s.t1 = s.empty ? ab.x : ab.y;
+  s.e = equi_angular_setup(o, d, lights[k].position.xyz, s.t0, s.t1);
+  return s;
+}
+float light_segment_pdf(LightSegment s, float t) {
+  return s.empty || t < s.t0 || t > s.t1 ? 0.0f : equi_angular_pdf(s.e, t);
+}
+#endif
+
 // Offset of ray origins off a surface, relative to the scene's scale at that point.
 float surface_epsilon(vec3 x) {
   return 1e-4f * max(1.0f, max(abs(x.x), max(abs(x.y), abs(x.z))));
@@ -216,7 +240,7 @@ void main() {
   uint passes = N + 1u;
 #endif
   TrackResult known;  // a query's result in closed form
-  known.T = 1.0f;
+  known.T = Trans(1.0f);
   known.hit = false;
   known.t = 0.0f;
   known.ms = haze_at(cam_o);
@@ -252,10 +276,10 @@ void main() {
       q_mode = TRACK_RATIO;
       q_eval = false;
       if (haze_only) {
-        known.T = exp(-tau_total);
+        known.T = haze_transmittance(tau_total);
         q_known = true;
         if (!cam_hit) {
-          T_surf = known.T;
+          T_surf = trans_mean(known.T);
           L_surf = known.T * background(cam_d);
           continue;
         }
@@ -305,10 +329,17 @@ void main() {
         // The majorant walk to t: q_base samples where it stops, the others walk to the t they drew (one
         // call site, one inlined DDA).
         bool base = u_pick <= 1.5f && u_pick < p_base;
+        bool ea_empty = false;
+#if HAZE_LOCAL
+        // Spots' cones clip their equi-angular segments only where q_base covers the rest of the ray.
+        bool cone_clipped = p_base > 0.0f;
+#endif
         if (u_pick <= 1.5f && !base) {
 #if HAZE_LOCAL
           uint k = min(uint((u_pick - p_base) / p_ea * float(K)), K - 1u);
-          t = equi_angular_sample(equi_angular_setup(cam_o, cam_d, lights[k].position.xyz, 0.0f, t_s), u_t);
+          LightSegment ls = light_segment(cam_o, cam_d, k, t_s, cone_clipped);
+          t = equi_angular_sample(ls.e, u_t);
+          ea_empty = ls.empty;
 #endif
           t = clamp(t, 0.0f, t_s);
         }
@@ -318,21 +349,20 @@ void main() {
         float q = p_base > 0.0f ? p_base * mw.sigma * truncated_exp_pdf_tau(mw.tau, tau_total) : 0.0f;
 #if HAZE_LOCAL
         for (uint k = 0u; k < K; ++k)
-          q += p_ea / float(K) *
-               equi_angular_pdf(equi_angular_setup(cam_o, cam_d, lights[k].position.xyz, 0.0f, t_s), t);
+          q += p_ea / float(K) * light_segment_pdf(light_segment(cam_o, cam_d, k, t_s, cone_clipped), t);
 #endif
 #if HAZE_GUIDING
         q = (1.0f - P) * q + P * guide_mixture_pdf(gm, t);
 #endif
-        // A sample the mixture cannot produce again contributes nothing.
-        q_j = q > 0.0f ? q : T_INF;
+        // A sample the mixture cannot produce again contributes nothing (nor does a light's empty segment).
+        q_j = q > 0.0f && !ea_empty ? q : T_INF;
         t_j = t;
         x = cam_o + cam_d * t;
         q_t1 = t;
         q_mode = TRACK_RATIO;
         q_eval = true;
         if (haze_only) {
-          known.T = exp(-mw.tau);
+          known.T = haze_transmittance(mw.tau);
           known.ms = haze_at(x);
           q_known = true;
         }
@@ -361,12 +391,14 @@ void main() {
           T_surf = 0.0f;
         } else {
           state = ST_SURFACE;
-          r.T = 1.0f;
+#if !HAZE_CHROMATIC
+          r.T = 1.0f;  // chromatic: r.T is the spectral tracking weight of reaching t_s, T's estimate
+#endif
         }
       }
 #endif
       if (state == ST_SURFACE) {
-        T_surf = r.T;
+        T_surf = trans_mean(r.T);
         if (cam_hit) {
 #if HAZE_SURFACES
           GpuInstance inst = instances[cam_h.instance];
@@ -382,9 +414,9 @@ void main() {
           on_surface = true;
           to_surface = true;
           beta = vec3(r.T);
-          beta_start = r.T;
+          beta_start = trans_max(r.T);
           depth = 1u;
-          do_nee = max_depth > 0u && r.T > 0.0f;
+          do_nee = max_depth > 0u && trans_max(r.T) > 0.0f;
           next_sample = !do_nee;
 #endif
         } else {
@@ -394,16 +426,22 @@ void main() {
       } else if (state == ST_CAMERA) {
         // r.T = T(0,t_j) estimate; the camera-ray contribution is T sigma (...) / q(t_j), averaged over N.
         // A delta-tracked sample has weight 1 at its real collision (T sigma_t is its pdf).
-        float w = r.T * r.ms.sigma_t / (q_j * float(N));
+#if HAZE_CHROMATIC
+        // Per channel: T_c sigma_t,c / q, sigma_t,c estimated by the chosen component's sigma_t * color.
+        Trans w = r.T * r.ms.sigma_t * r.ms.color / (q_j * float(N));
+#else
+        Trans w = r.T * r.ms.sigma_t / (q_j * float(N));
+#endif
         if (q_mode == TRACK_DELTA) {
-          w = r.hit ? 1.0f / float(N) : 0.0f;
+          // Chromatic: the spectral tracking weight (1 in grey media).
+          w = r.hit ? r.T / float(N) : Trans(0.0f);
           t_j = r.t;
           x = cam_o + cam_d * r.t;
         }
         L_vol += w * r.ms.emit;
-        if (max_depth > 0u && w > 0.0f) {
+        if (max_depth > 0u && trans_max(w) > 0.0f) {
           beta = vec3(w) * r.ms.albedo;
-          beta_start = w;
+          beta_start = trans_max(w);
           g = r.ms.g;
           on_surface = false;
           depth = 1u;
@@ -464,13 +502,18 @@ void main() {
         bool vertex = false;
 #if HAZE_VOLPATH
         bool camera_ray = depth == 0u;
+#if HAZE_CHROMATIC
+        if (!r.capped) beta *= r.T;  // the spectral tracking weight
+#endif
         if (camera_ray && !r.capped) {
           // The camera ray's first vertex decides the term the path belongs to.
           to_surface = !r.hit;
-          if (!r.hit) T_surf = 1.0f;
+          if (!r.hit) T_surf = trans_mean(r.T);
           t_j = r.t;
-          if (!r.hit && !walk_hit) L_surf = background(cam_d);
+          if (!r.hit && !walk_hit) L_surf = beta * background(cam_d);
         }
+#elif HAZE_CHROMATIC
+        if (!r.capped) beta *= r.T;  // the spectral tracking weight
 #endif
         if (r.capped) {
           // A walk the step cap stopped found no vertex: the path ends here (counted, biased).
@@ -504,7 +547,7 @@ void main() {
           vertex = true;
 #if HAZE_VOLPATH
           if (camera_ray) {
-            L_surf = instances[walk_h.instance].emission.rgb;
+            L_surf = beta * instances[walk_h.instance].emission.rgb;
 #ifdef BINDING_acc_emit
             E_surf = L_surf;
 #endif
