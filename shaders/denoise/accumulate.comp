@@ -2,8 +2,9 @@
 // SVGF pass 2: temporal accumulation. Firefly clamp of the input (adaptive mode), reprojection of the
 // history with normal and depth tests, stochastic bilinear taps, an extended search after rejection and
 // border reuse for motion that leaves the screen (adaptive mode), the percentile-adaptive history cap, the
-// history test against the neighbours' mean (adaptive mode, history_test > 0), and the blend of colour and luminance moments. The classic mode (Schied et al. 2017) averages the valid
-// bilinear taps, falls back to a 3x3 search and blends with alpha = max(0.2, 1/n).
+// history test against the neighbours' mean (adaptive mode, history_test > 0), and the blend of colour and
+// luminance moments. The classic mode (Schied et al. 2017) averages the valid bilinear taps, falls back to a
+// 3x3 search and blends with alpha = max(0.2, 1/n).
 #extension GL_GOOGLE_include_directive : require
 layout(local_size_x = 8, local_size_y = 8) in;
 layout(constant_id = 0) const uint CLASSIC = 0u;

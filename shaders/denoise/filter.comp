@@ -78,7 +78,8 @@ void tap(ivec2 pix, ivec2 o, float k) {
   float w;
   if (CLASSIC != 0u) {
     w = k * exp(-abs(Yq - centre.Y) / centre.luminance_scale) *
-        depth_weight(centre.g, q, offset, P.filter_phi.y) * pow(max(0.0f, dot(centre.g.n, q.n)), P.filter_phi.z);
+        depth_weight(centre.g, q, offset, P.filter_phi.y) *
+        pow(max(0.0f, dot(centre.g.n, q.n)), P.filter_phi.z);
   } else {
 #ifdef SVGF_SPLAT
     w = k * filter_weight_symmetric(centre, filter_centre(q, Yq, cq.w), offset);

@@ -113,8 +113,8 @@ float depth_weight(GPixel c, GPixel q, vec2 offset, float phi) {
   return exp(-abs(c.z - q.z) / (phi * predicted + 1e-3f * c.z));
 }
 
-// A filter tap's centre as the edge-stopping terms see it (filter.comp): its geometry, luminance, the scale of
-// its luminance term (phi_l sigma + eps) and how far its depth and normal terms have faded.
+// A filter tap's centre as the edge-stopping terms see it (filter.comp): its geometry, luminance, the scale
+// of its luminance term (phi_l sigma + eps) and how far its depth and normal terms have faded.
 struct FilterCentre {
   GPixel g;
   float Y, luminance_scale, fade_n, fade_z;
@@ -130,8 +130,8 @@ FilterCentre filter_centre(GPixel g, float Y, float sigma) {
   return c;
 }
 
-// Adaptive mode's edge-stopping weight of tap q (luminance Yq, at offset o in pixels) for centre c, without the
-// kernel's own weight: exp(-(|dY| / (phi_l sigma + eps))^2) times the depth and normal terms, each faded
+// Adaptive mode's edge-stopping weight of tap q (luminance Yq, at offset o in pixels) for centre c, without
+// the kernel's own weight: exp(-(|dY| / (phi_l sigma + eps))^2) times the depth and normal terms, each faded
 // towards 1 with the centre's distance.
 float filter_weight(FilterCentre c, GPixel q, float Yq, vec2 o) {
   float x = abs(Yq - c.Y) / c.luminance_scale;

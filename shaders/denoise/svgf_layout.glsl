@@ -15,7 +15,7 @@ struct SvgfGpuParams {
   vec4 variance;     // x: cos of the normal reject, y: depth accept (phi), z: spatial bias b, w: falloff f
   vec4 filter_phi;   // x: phi_l, y: phi_z, z: cos of phi_n (adaptive) or exponent (classic), w: epsilon
   vec4 filter_fade;  // x: zbias normals, y: zbias depth
-  vec4 taa;  // x: blend (weight of the history), y: clamp (0 min/max, 1 mean +- gamma sigma), z: gamma
+  vec4 taa;        // x: blend (weight of the history), y: clamp (0 min/max, 1 mean +- gamma sigma), z: gamma
   uvec4 geometry;  // own geometry (SVGF_OWN_GEOMETRY): x, y: the input depth's float stride and offset
   vec4 variance_scale;  // x: 1 for filter_sigma "estimate" (else 0), y: the smallest alpha, max(1 - a, 1e-3)
 };

@@ -72,8 +72,9 @@ bool project_point(uint p, out float d, out vec3 v, out vec2 q) {
       if (m.velocity.w != 0u) {
         // Forward Euler over the frame with the previous frame's velocity at the point.
         vec3 vel = vec3(0.0f);
-        [[dont_unroll]] for (int c = 0; c < 3; ++c)
+        [[dont_unroll]] for (int c = 0; c < 3; ++c) {
           vel[c] = grid_trilinear(m.velocity[c], (m.prev_world_to_velocity[c] * vec4(X, 1.0f)).xyz);
+        }
         moved += (m.velocity_to_world * vec4(vel, 0.0f)).xyz;
       }
 #endif
@@ -100,12 +101,12 @@ void main() {
     uint bits = floatBitsToUint(d);
     vec2 size = vec2(pc.size), centre = vec2(pix) + 0.5f;
     if (bits != 0u && bits < 0x7f800000u) {
-      vec3 X = scene.cam_position.xyz +
-               d * camera_direction(scene.cam_right.xyz, scene.cam_up.xyz, scene.cam_forward.xyz, centre, size);
+      vec3 X = scene.cam_position.xyz + d * camera_direction(scene.cam_right.xyz, scene.cam_up.xyz,
+                                                             scene.cam_forward.xyz, centre, size);
       v = X - scene.prev_cam_position.xyz;
       if (dot(v, scene.prev_cam_forward.xyz) > 0.0f) {
-        q = camera_project_direction(scene.prev_cam_right.xyz, scene.prev_cam_up.xyz, scene.prev_cam_forward.xyz, v,
-                                     size);
+        q = camera_project_direction(scene.prev_cam_right.xyz, scene.prev_cam_up.xyz,
+                                     scene.prev_cam_forward.xyz, v, size);
         if (all(greaterThanEqual(q, vec2(0.0f))) && all(lessThan(q, size))) {
           motion[p] = vec4(q - centre, d - length(v), 1.0f);
           return;

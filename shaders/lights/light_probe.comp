@@ -7,9 +7,9 @@
 //   i < the light count), 0.
 #extension GL_GOOGLE_include_directive : require
 layout(local_size_x = 64) in;
-#include "common/dispatch.glsl"
 #include "common/color.glsl"
 #include "common/compat.glsl"
+#include "common/dispatch.glsl"
 #include "common/rng.glsl"
 #include "common/sampling.glsl"
 #include "volume/gpu_scene.glsl"

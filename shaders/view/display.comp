@@ -15,12 +15,12 @@ layout(std430, binding = BINDING_display) writeonly buffer Display {
   uint display[];
 };
 
-const uint COLOUR = 0u;      // rgb floats at offset
-const uint COLOUR_HALF = 1u; // an SVGF output: half rgb + sigma per pixel
-const uint SCALAR = 2u;      // one float at offset, grey = value * scale
-const uint MOTION = 3u;      // two floats at offset (pixels), red-green = 0.5 + 0.5 * value * scale
-const uint NORMAL = 4u;      // octahedral normal at offset, rgb = 0.5 + 0.5 n
-const uint GUIDE = 5u;       // the guide's states: the nearest vertex's contribution-weighted mean distance
+const uint COLOUR = 0u;       // rgb floats at offset
+const uint COLOUR_HALF = 1u;  // an SVGF output: half rgb + sigma per pixel
+const uint SCALAR = 2u;       // one float at offset, grey = value * scale
+const uint MOTION = 3u;       // two floats at offset (pixels), red-green = 0.5 + 0.5 * value * scale
+const uint NORMAL = 4u;       // octahedral normal at offset, rgb = 0.5 + 0.5 n
+const uint GUIDE = 5u;        // the guide's states: the nearest vertex's contribution-weighted mean distance
 
 layout(push_constant) uniform Push {
   uint pixels, width, mode, stride;  // stride: floats per pixel (per state for GUIDE)

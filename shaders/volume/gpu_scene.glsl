@@ -11,8 +11,8 @@ struct GpuMedium {
   vec4 albedo_g;   // rgb albedo, w: HG g (clamped)
   vec4 world_min;  // world bounds of the medium (dilated by one voxel); w: density scale
   vec4 world_max;  // w: emission scale
-  uvec4 grid;     // x: density grid, y: emission grid (indices into the binding "grids"), z: emission mode
-  vec4 emission;  // x: kelvin per grid unit (blackbody)
+  uvec4 grid;      // x: density grid, y: emission grid (indices into the binding "grids"), z: emission mode
+  vec4 emission;   // x: kelvin per grid unit (blackbody)
   vec4 sigma_t_color;  // rgb multipliers of sigma_t (read by the CHROMATIC variant only)
 };
 

@@ -18,12 +18,20 @@ layout(std430, binding = BINDING_majorant) readonly buffer MajorantBuffer {
 // A transmittance or tracking weight: one per channel in chromatic media (HAZE_CHROMATIC), else one.
 #if HAZE_CHROMATIC
 #define Trans vec3
-HAZE_INLINE float trans_max(vec3 T) { return max(T.x, max(T.y, T.z)); }
-HAZE_INLINE float trans_mean(vec3 T) { return (T.x + T.y + T.z) * (1.0f / 3.0f); }
+HAZE_INLINE float trans_max(vec3 T) {
+  return max(T.x, max(T.y, T.z));
+}
+HAZE_INLINE float trans_mean(vec3 T) {
+  return (T.x + T.y + T.z) * (1.0f / 3.0f);
+}
 #else
 #define Trans float
-HAZE_INLINE float trans_max(float T) { return T; }
-HAZE_INLINE float trans_mean(float T) { return T; }
+HAZE_INLINE float trans_max(float T) {
+  return T;
+}
+HAZE_INLINE float trans_mean(float T) {
+  return T;
+}
 #endif
 
 struct MediumSample {

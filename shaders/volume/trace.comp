@@ -4,7 +4,8 @@
 // delta-tracked random walk for multiple scattering). Results are added to per-pixel sums and squares.
 // With HAZE_VOLPATH (render.estimator "volpath") the same kernel is pbrt-v4's VolPathIntegrator for grey
 // media instead, the baseline of haze bench's efficiency figures: the camera ray is the first delta-tracked
-// walk ray, real collisions absorb or scatter, NEE at every vertex, plain ratio tracking with pbrt's roulette.
+// walk ray, real collisions absorb or scatter, NEE at every vertex, plain ratio tracking with pbrt's
+// roulette.
 //
 // The estimator runs as a small state machine whose loop issues one tracking query per iteration, so the
 // tracker (and its single density-lookup call site) is inlined once.
@@ -177,7 +178,8 @@ void main() {
   bool may_delta = p_ea == 0.0f;
   MajWalk cam_walk = maj_walk(cam_o, cam_d, 0.0f, t_s, may_delta ? TAU_DELTA : T_INF);
   bool delta_cam = may_delta && cam_walk.tau >= TAU_DELTA && cam_walk.tau_het >= 0.5f * TAU_DELTA;
-  if (may_delta && !delta_cam && cam_walk.tau >= TAU_DELTA) cam_walk = maj_walk(cam_o, cam_d, 0.0f, t_s, T_INF);
+  if (may_delta && !delta_cam && cam_walk.tau >= TAU_DELTA)
+    cam_walk = maj_walk(cam_o, cam_d, 0.0f, t_s, T_INF);
   float tau_total = cam_walk.tau;  // unused by delta-tracked rays
   float p_base = tau_total > 0.0f ? 1.0f : 0.0f;
 #if HAZE_LOCAL
@@ -343,8 +345,8 @@ void main() {
 #endif
           t = clamp(t, 0.0f, t_s);
         }
-        MajWalk mw =
-            maj_walk(cam_o, cam_d, 0.0f, base ? t_s : t, base ? truncated_exp_sample_tau(tau_total, u_t) : T_INF);
+        MajWalk mw = maj_walk(cam_o, cam_d, 0.0f, base ? t_s : t,
+                              base ? truncated_exp_sample_tau(tau_total, u_t) : T_INF);
         if (base) t = mw.t;
         float q = p_base > 0.0f ? p_base * mw.sigma * truncated_exp_pdf_tau(mw.tau, tau_total) : 0.0f;
 #if HAZE_LOCAL
