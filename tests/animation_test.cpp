@@ -25,8 +25,9 @@ namespace hs = haze::scene;
 namespace {
 
 using haze::test::expect_error;
+using haze::test::read_error;
 
-json procedural_medium() {
+json sphere_medium() {
   return {{"procedural", {{"kind", "sphere"}}}};
 }
 
@@ -41,7 +42,7 @@ json track(const std::string& path, std::vector<json> keys, const std::string& i
 
 // A scene with one medium, every light kind, and the given tracks.
 json animated(std::vector<json> tracks) {
-  json j = {{"media", {procedural_medium()}},
+  json j = {{"media", {sphere_medium()}},
             {"lights",
              {{"sun", {{"direction", {0, 1, 0}}}},
               {"points", {{{"position", {0, 2, 0}}}}},
@@ -55,10 +56,6 @@ Scene read(const json& j) {
   return hs::from_json(j, "scene.json", "");
 }
 
-std::string read_error(const json& j, std::initializer_list<std::string> pieces) {
-  return expect_error([&] { read(j); }, pieces);
-}
-
 // The value of a one-track scalar animation at `frame`.
 float scalar_at(const std::vector<json>& keys, const std::string& interpolation, int frame) {
   Scene s = read(animated({track("lights.sun.irradiance", keys, interpolation)}));
@@ -66,8 +63,8 @@ float scalar_at(const std::vector<json>& keys, const std::string& interpolation,
 }
 
 // Each test's files live in its own folder.
-struct TempDir : haze::test::TempDir {
-  TempDir() : haze::test::TempDir("haze_animation_test") {}
+struct AnimationDir : haze::test::TempDir {
+  AnimationDir() : haze::test::TempDir("haze_animation_test") {}
 };
 
 }  // namespace
@@ -215,7 +212,7 @@ TEST(AnimationTracks, Lights) {
 
 TEST(AnimationFrames, StaticSceneIsUnchanged) {
   json j = {{"camera", {{"position", {1, 2, 3}}, {"target", {0, 0.5, 0}}, {"fov_y", 30}}},
-            {"media", {procedural_medium(), {{"file", "/data/cloud.vdb"}, {"density_scale", 2}}}},
+            {"media", {sphere_medium(), {{"file", "/data/cloud.vdb"}, {"density_scale", 2}}}},
             {"lights", {{"sun", {{"direction", {1, 2, 0.5}}}}, {"points", {{{"intensity", 5}}}}}},
             {"render", {{"frames", "3:9"}, {"spp", 4}}}};
   Scene s = read(j);
@@ -312,7 +309,7 @@ TEST(AnimationJson, OverridesReachIntoTracks) {
   hs::apply_override(j, "animation=null", "scene.json");
   EXPECT_FALSE(read(j).animation);
   // A bad value from --set names the override.
-  TempDir dir;
+  AnimationDir dir;
   json file = animated({track("camera.fov_y", {key(0, 40), key(10, 50)})});
   fs::path p = dir.write("s.json", file.dump());
   expect_error(
@@ -336,7 +333,7 @@ TEST(AnimationSequence, FilePattern) {
 }
 
 TEST(AnimationSequence, LoadChecksEveryFrameAndNamesTheMissingOne) {
-  TempDir dir;
+  AnimationDir dir;
   for (int f = 1; f <= 5; ++f) dir.write(hs::frame_file("vol/smoke_####.vdb", f), "not really a vdb");
   json j = {{"media", {{{"file", "vol/smoke_####.vdb"}, {"density_scale", 2}}}},
             {"render", {{"frames", "1:5"}}}};

@@ -62,14 +62,6 @@ void put_medium(json& j, bool vdb, const json& haze, const json& box) {
     j["haze"] = haze;
 }
 
-render::Image render_checked(render::Renderer& r, int spp, const std::string& what) {
-  r.add_samples(spp);
-  render::Image img = r.resolve();
-  expect_no_discards(img.counters, what);
-  EXPECT_EQ(context().validation_messages(), 0u) << what;
-  return img;
-}
-
 // Pooled z of one channel, each pixel's variance floored at float rounding (closed forms have none).
 double pooled_z(const Estimate& e, const std::vector<double>& ref, int k) {
   double diff = 0, var = 0;
@@ -80,15 +72,15 @@ double pooled_z(const Estimate& e, const std::vector<double>& ref, int k) {
   return diff / std::sqrt(var);
 }
 
-struct Case {
+struct ChromaticCase {
   std::string estimator;
   bool vdb;
   std::string name() const { return estimator + (vdb ? " vdb" : " haze"); }
 };
-class ChromaticP : public ::testing::TestWithParam<Case> {};
+class ChromaticP : public ::testing::TestWithParam<ChromaticCase> {};
 INSTANTIATE_TEST_SUITE_P(Estimators, ChromaticP,
-                         ::testing::Values(Case{"default", false}, Case{"default", true},
-                                           Case{"volpath", false}, Case{"volpath", true}),
+                         ::testing::Values(ChromaticCase{"default", false}, ChromaticCase{"default", true},
+                                           ChromaticCase{"volpath", false}, ChromaticCase{"volpath", true}),
                          [](const auto& i) { return i.param.estimator + (i.param.vdb ? "_vdb" : "_haze"); });
 
 // Beer-Lambert per channel: a white environment seen through an absorbing slab (albedo 0) is
@@ -99,7 +91,7 @@ INSTANTIATE_TEST_SUITE_P(Estimators, ChromaticP,
 // tracking weight without its 1 / (1 - P_r): pooled z -113 and -52 in channels 0 and 1 (volpath; the default
 // with the VDB box, whose transmittance comes from the delta-tracked camera sample, -114 and -52).
 TEST_P(ChromaticP, BeerLambertPerChannel) {
-  const Case c = GetParam();
+  const ChromaticCase c = GetParam();
   const double sigma = 1.2;
   json j = slab_scene(c.estimator);
   put_medium(j, c.vdb, tinted_haze(sigma, 0, kBlueTint), tinted_box(sigma, 0, kBlueTint));
@@ -121,7 +113,7 @@ TEST_P(ChromaticP, BeerLambertPerChannel) {
 // weight without its 1 / P_r: volpath pooled z -97, -83, -58, default VDB box (delta-tracked camera samples)
 // -175, -150, -101.
 TEST_P(ChromaticP, SunlitSlabSingleScatteringPerChannel) {
-  const Case c = GetParam();
+  const ChromaticCase c = GetParam();
   const double sigma = 0.8, albedo = 0.7, g = 0.4, E = 2.0;
   json j = slab_scene(c.estimator);
   put_medium(j, c.vdb, tinted_haze(sigma, albedo, kBlueTint, g), tinted_box(sigma, albedo, kBlueTint, g));
@@ -149,7 +141,7 @@ TEST_P(ChromaticP, SunlitSlabSingleScatteringPerChannel) {
 // seen straight through it (the surface term: T_k times the disk's radiance, rendered without the slab) is
 // exp(-sigma c_k) of it per channel, red > green > blue.
 TEST_P(ChromaticP, WhiteSunTurnsOrangeThroughThickSlab) {
-  const Case c = GetParam();
+  const ChromaticCase c = GetParam();
   const double sigma = 3.0;
   json j = slab_scene(c.estimator, 4.0, 8);
   j["lights"] = {{"sun", {{"direction", {0, 1, 0}}, {"irradiance", 2.0}, {"angular_diameter", 20}}}};
@@ -186,7 +178,7 @@ TEST_P(ChromaticP, WhiteSunTurnsOrangeThroughThickSlab) {
 // are unbiased (pooled z within the test's 3.89; ratio tracking keeps the clear channel at 1 exactly,
 // spectral tracking's null weights only in expectation), the opaque one is 0.
 TEST_P(ChromaticP, ZeroAndHugeChannelsStayFinite) {
-  const Case c = GetParam();
+  const ChromaticCase c = GetParam();
   const glm::dvec3 tint{0.0, 1.0, 1000.0};
   json j = slab_scene(c.estimator, 40, 6);
   j["render"]["max_depth"] = 4;

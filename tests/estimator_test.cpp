@@ -17,7 +17,6 @@
 namespace haze::test {
 namespace {
 
-constexpr double kZ = 3.89;
 using glsl::ACC_L;
 using glsl::ACC_L2;
 using glsl::ACC_T;
@@ -114,15 +113,6 @@ INSTANTIATE_TEST_SUITE_P(Estimators, EstimatorP, ::testing::Values("default", "v
 json with_estimator(json j, const std::string& estimator) {
   j["render"]["estimator"] = estimator;
   return j;
-}
-
-// Adds `spp` samples and resolves; nothing may be discarded.
-render::Image render_checked(render::Renderer& r, int spp, const std::string& what) {
-  r.add_samples(spp);
-  render::Image img = r.resolve();
-  expect_no_discards(img.counters, what);
-  EXPECT_EQ(context().validation_messages(), 0u) << what;
-  return img;
 }
 
 // The default estimator's transmittance through homogeneous haze is its closed form (the haze is the
@@ -750,7 +740,7 @@ TEST(Estimator, VolpathAndDefaultAgreeOnAFullScene) {
 // folded into double sums on the host. The scheme at 2^24 samples of one value, simulated on the CPU with
 // the same batch: a float running sum stops growing once a sample is below half its ulp (the mean comes out
 // 9% low here), the folded one keeps the mean and the variance to float rounding.
-TEST(Reference, FoldedSumsConvergeAt2To24Samples) {
+TEST(ReferenceSums, FoldedSumsConvergeAt2To24Samples) {
   const int64_t n = int64_t(1) << 24;
   const float x = 0.3f, x2 = x * x;
   float plain = 0, plain2 = 0, batch = 0, batch2 = 0;
@@ -781,7 +771,7 @@ TEST(Reference, FoldedSumsConvergeAt2To24Samples) {
 // estimate made of 2.5 folds has the mean and variance of the estimator. Injected: a fold that drops the
 // device's sums: mean 0, z -50. volpath's transmittance through a
 // homogeneous slab is a 0/1 sample with mean T and variance T (1 - T), both known.
-TEST(Reference, RendererFoldsIntoDoubleSums) {
+TEST(ReferenceSums, RendererFoldsIntoDoubleSums) {
   json j = with_estimator(slab_camera(1), "volpath");
   j["haze"] = haze_slab(0.7, 0.5, 0);
   scene::Scene s = make_scene(j);

@@ -25,4 +25,9 @@ inline std::string expect_error(const std::function<void()>& f, std::initializer
   return {};
 }
 
+// Reads j as scene.json, expects the error expect_error describes.
+inline std::string read_error(const nlohmann::json& j, std::initializer_list<std::string> pieces) {
+  return expect_error([&] { scene::from_json(j, "scene.json", ""); }, pieces);
+}
+
 }  // namespace haze::test

@@ -32,7 +32,6 @@ namespace haze::test {
 namespace {
 
 using nlohmann::json;
-constexpr double kZ = 3.89;
 
 double chi2_critical(int df) {
   double a = 2.0 / (9.0 * df);

@@ -145,10 +145,12 @@ TEST(ConeClip, MatchesABruteForceScan) {
       if (std::abs(inside) < 1e-4) continue;  // on the surface: rounding decides
       bool in_interval = ab.x < ab.y && t > ab.x + 4e-3f && t < ab.y - 4e-3f;
       bool out_interval = !(ab.x < ab.y) || t < ab.x - 4e-3f || t > ab.y + 4e-3f;
-      if (in_interval)
+      if (in_interval) {
         ASSERT_GT(inside, 0.0) << "line " << i << " t " << t << " [" << ab.x << ", " << ab.y << "]";
-      if (out_interval)
+      }
+      if (out_interval) {
         ASSERT_LT(inside, 0.0) << "line " << i << " t " << t << " [" << ab.x << ", " << ab.y << "]";
+      }
       any_inside = any_inside || inside > 0;
       ++checked;
     }

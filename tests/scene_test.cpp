@@ -24,10 +24,7 @@ namespace hs = haze::scene;
 namespace {
 
 using haze::test::expect_error;
-
-std::string read_error(const json& j, std::initializer_list<std::string> pieces) {
-  return expect_error([&] { hs::from_json(j, "scene.json", ""); }, pieces);
-}
+using haze::test::read_error;
 
 json procedural_medium() {
   return {{"procedural", {{"kind", "cloud"}, {"seed", 3}}}};
@@ -56,8 +53,8 @@ json full_scene() {
 }
 
 // Each test's files live in its own folder.
-struct TempDir : haze::test::TempDir {
-  TempDir() : haze::test::TempDir("haze_scene_test") {}
+struct SceneDir : haze::test::TempDir {
+  SceneDir() : haze::test::TempDir("haze_scene_test") {}
 };
 
 }  // namespace
@@ -235,12 +232,12 @@ TEST(SceneLoad, MissingFile) {
   std::string msg = expect_error([] { hs::load("/nonexistent/dir/scene.json"); },
                                  {"cannot open scene file /nonexistent/dir/scene.json: "});
   EXPECT_EQ(msg.rfind("cannot open scene file", 0), 0u);
-  TempDir dir;
+  SceneDir dir;
   expect_error([&] { hs::load(dir.path().string()); }, {"cannot open scene file", "directory"});
 }
 
 TEST(SceneLoad, MalformedJsonGivesLineAndColumn) {
-  TempDir dir;
+  SceneDir dir;
   fs::path p = dir.write("bad.json", "{\n  \"render\": {\n    \"spp\": 4,,\n  }\n}\n");
   expect_error([&] { hs::load(p.string()); },
                {p.string() + ": line 3, column 14: malformed JSON", "fix the syntax"});
@@ -250,7 +247,7 @@ TEST(SceneLoad, MalformedJsonGivesLineAndColumn) {
 
 // nlohmann::json keeps the last of two equal keys without a word; a scene file with one is refused.
 TEST(SceneLoad, DuplicateKeysAreNamed) {
-  TempDir dir;
+  SceneDir dir;
   fs::path p = dir.write("dup.json", "{\"render\": {\"spp\": 4, \"width\": 8, \"spp\": 16}}");
   expect_error([&] { hs::load(p.string()); },
                {p.string() + ": render.spp: the key appears twice", "keep one"});
@@ -263,13 +260,13 @@ TEST(SceneLoad, DuplicateKeysAreNamed) {
 }
 
 TEST(SceneLoad, CommentsAreAllowed) {
-  TempDir dir;
+  SceneDir dir;
   fs::path p = dir.write("c.json", "// a comment\n{ /* spp */ \"render\": {\"spp\": 8} }\n");
   EXPECT_EQ(hs::load(p.string()).render.spp, 8);
 }
 
 TEST(SceneLoad, RelativeMediaFilesResolveAgainstTheSceneFolder) {
-  TempDir dir;
+  SceneDir dir;
   dir.write("volumes/cloud.vdb", "not really a vdb");
   fs::path p =
       dir.write("scenes/a.json", R"({"media": [{"file": "../volumes/cloud.vdb"}, {"file": "/abs/x.vdb"}]})");
@@ -361,7 +358,7 @@ TEST(SceneOverrides, Errors) {
   expect_error(set("media.=1"), {"empty part"});
   expect_error(set("camera.position.1=7"), {"camera.position", "not in the file"});  // no such array in j
   // Values that parse as JSON but are out of range are caught by the reader, which names the --set.
-  TempDir dir;
+  SceneDir dir;
   fs::path p = dir.write("s.json", "{}");
   expect_error([&] { hs::load(p.string(), {"render.spp=0"}); },
                {p.string() + ": render.spp: must be in [1, 1048576], got 0", "--set render.spp=0"});

@@ -69,12 +69,12 @@ void expect_finite(render::Renderer& r, const std::string& what) {
   EXPECT_EQ(context().validation_messages(), 0u) << what;
 }
 
-struct Case {
+struct ExtremeCase {
   const char* name;
   json patch;  // merged into the base scene (RFC 7386)
 };
 
-class Extremes : public ::testing::TestWithParam<Case> {};
+class Extremes : public ::testing::TestWithParam<ExtremeCase> {};
 
 TEST_P(Extremes, StayFinite) {
   json j = base_scene();
@@ -134,25 +134,27 @@ json volpath(json patch) {
 INSTANTIATE_TEST_SUITE_P(
     Sweep, Extremes,
     ::testing::Values(
-        Case{"base", json::object()}, Case{"medium_emission_1e8", emission(1e8)},
-        Case{"density_1e-6", density(1e-6)}, Case{"density_1e6", density(1e6)},
-        Case{"albedo_0", media_albedo(0)}, Case{"albedo_1", media_albedo(1)}, Case{"g_-1", g(-1)},
-        Case{"g_1", g(1)}, Case{"voxel_1e-4", voxel(1e-4)}, Case{"voxel_1e4", voxel(1e4)},
-        Case{"emitters_1e8",
-             {{"lights",
-               {{"sun", {{"irradiance", 1e8}}},
-                {"points", {{{"position", {-1, 1.2, 0.5}}, {"intensity", 1e8}}}}}}}},
-        Case{"one_pixel", {{"render", {{"width", 1}, {"height", 1}}}}},
-        Case{"camera_far", {{"camera", {{"position", {0, 0.5, 1e6}}}}}},
-        Case{"camera_near", {{"camera", {{"position", {0, 0.5, 1e-6}}, {"target", {0, 0.5, -1}}}}}},
-        Case{"volpath", volpath(json::object())}, Case{"volpath_density_1e-6", volpath(density(1e-6))},
-        Case{"volpath_density_1e6", volpath(density(1e6))},
-        Case{"volpath_albedo_1", volpath(media_albedo(1))},
-        Case{"volpath_emitters_1e8",
-             volpath({{"lights",
-                       {{"sun", {{"irradiance", 1e8}}},
-                        {"points", {{{"position", {-1, 1.2, 0.5}}, {"intensity", 1e8}}}}}}})}),
-    [](const ::testing::TestParamInfo<Case>& i) {
+        ExtremeCase{"base", json::object()}, ExtremeCase{"medium_emission_1e8", emission(1e8)},
+        ExtremeCase{"density_1e-6", density(1e-6)}, ExtremeCase{"density_1e6", density(1e6)},
+        ExtremeCase{"albedo_0", media_albedo(0)}, ExtremeCase{"albedo_1", media_albedo(1)},
+        ExtremeCase{"g_-1", g(-1)}, ExtremeCase{"g_1", g(1)}, ExtremeCase{"voxel_1e-4", voxel(1e-4)},
+        ExtremeCase{"voxel_1e4", voxel(1e4)},
+        ExtremeCase{"emitters_1e8",
+                    {{"lights",
+                      {{"sun", {{"irradiance", 1e8}}},
+                       {"points", {{{"position", {-1, 1.2, 0.5}}, {"intensity", 1e8}}}}}}}},
+        ExtremeCase{"one_pixel", {{"render", {{"width", 1}, {"height", 1}}}}},
+        ExtremeCase{"camera_far", {{"camera", {{"position", {0, 0.5, 1e6}}}}}},
+        ExtremeCase{"camera_near", {{"camera", {{"position", {0, 0.5, 1e-6}}, {"target", {0, 0.5, -1}}}}}},
+        ExtremeCase{"volpath", volpath(json::object())},
+        ExtremeCase{"volpath_density_1e-6", volpath(density(1e-6))},
+        ExtremeCase{"volpath_density_1e6", volpath(density(1e6))},
+        ExtremeCase{"volpath_albedo_1", volpath(media_albedo(1))},
+        ExtremeCase{"volpath_emitters_1e8",
+                    volpath({{"lights",
+                              {{"sun", {{"irradiance", 1e8}}},
+                               {"points", {{{"position", {-1, 1.2, 0.5}}, {"intensity", 1e8}}}}}}})}),
+    [](const ::testing::TestParamInfo<ExtremeCase>& i) {
       std::string n = i.param.name;
       for (char& c : n)
         if (!std::isalnum(static_cast<unsigned char>(c))) c = '_';

@@ -21,7 +21,6 @@
 namespace haze::test {
 namespace {
 
-constexpr double kZ = 3.89;
 using nlohmann::json;
 
 // Inside a closed box whose walls all emit Le and reflect with albedo a, the radiance is Le / (1 - a)

@@ -618,7 +618,7 @@ TEST(Bvh, InvariantsHold) {
 // ---------------------------------------------------------------------------------------------------------
 // GPU traversal against Embree
 
-class Gpu : public ::testing::Test {
+class BvhGpu : public ::testing::Test {
  protected:
   void TearDown() override { EXPECT_EQ(ctx().validation_messages(), 0u) << joined(ctx().validation_log()); }
 };
@@ -681,7 +681,7 @@ double edge_distance(const GpuTriangle& t, const GpuRay& ray) {
   return best;
 }
 
-TEST_F(Gpu, TraversalMatchesEmbree) {
+TEST_F(BvhGpu, TraversalMatchesEmbree) {
   TestScene s = test_scene();
   Bvh bvh = build_bvh(s.triangles);
   EmbreeScene ref(s.triangles);
@@ -814,7 +814,7 @@ TEST_F(Gpu, TraversalMatchesEmbree) {
             << " threads) = " << embree_mt_ms / gpu_ms << "\n";
 }
 
-TEST_F(Gpu, WatertightAcrossSharedEdgesAndVertices) {
+TEST_F(BvhGpu, WatertightAcrossSharedEdgesAndVertices) {
   // Rays onto every vertex and edge midpoint of a perforated panel (straight down) and of a finely
   // tessellated sphere (slanted, only where the surface faces the origin; at the silhouette a ray may
   // graze past legitimately): none may slip through between triangles.
@@ -840,7 +840,7 @@ TEST_F(Gpu, WatertightAcrossSharedEdgesAndVertices) {
   EXPECT_EQ(misses, 0u) << "of " << rays.size() << " rays at shared vertices and edges";
 }
 
-TEST_F(Gpu, InvalidRaysAndEmptyBvhMiss) {
+TEST_F(BvhGpu, InvalidRaysAndEmptyBvhMiss) {
   EXPECT_TRUE(ctx().validation_enabled()) << "the Khronos validation layer must be on for these tests";
   TestScene s = test_scene();
   Bvh bvh = build_bvh(s.triangles);

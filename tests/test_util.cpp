@@ -166,6 +166,14 @@ void expect_no_discards(const render::FrameCounters& c, const std::string& what)
   EXPECT_EQ(c.majorant, 0u) << what;
 }
 
+render::Image render_checked(render::Renderer& r, int spp, const std::string& what) {
+  r.add_samples(spp);
+  render::Image img = r.resolve();
+  expect_no_discards(img.counters, what);
+  EXPECT_EQ(context().validation_messages(), 0u) << what;
+  return img;
+}
+
 double integrate(const std::function<double(double)>& f, double a, double b, int n) {
   if (n % 2) ++n;
   double h = (b - a) / n, s = f(a) + f(b);

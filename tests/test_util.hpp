@@ -72,6 +72,12 @@ void expect_unbiased(const BiasTest& t, const std::string& what);
 // majorant violation.
 void expect_no_discards(const render::FrameCounters& c, const std::string& what);
 
+// Adds `spp` samples and resolves; nothing may be discarded and the validation layer says nothing.
+render::Image render_checked(render::Renderer& r, int spp, const std::string& what);
+
+// The bound on |z| of the pooled z-tests: a two-sided significance of 1e-4.
+inline constexpr double kZ = 3.89;
+
 // Composite Simpson on [a, b] with n (even) intervals.
 double integrate(const std::function<double(double)>& f, double a, double b, int n = 20000);
 

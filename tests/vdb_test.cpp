@@ -40,11 +40,11 @@ class VdbTest : public ::testing::Test {
 
 // Expects `f` to throw haze::vdb::Error whose one-line message contains every needle.
 template <typename F>
-void expect_error(F&& f, std::vector<std::string> needles) {
+void expect_vdb_error(F&& f, std::vector<std::string> needles) {
   try {
     f();
     ADD_FAILURE() << "no haze::vdb::Error thrown";
-  } catch (const Error& e) {
+  } catch (const haze::vdb::Error& e) {
     std::string msg = e.what();
     EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
     for (const auto& n : needles)
@@ -245,10 +245,10 @@ TEST_F(VdbTest, VectorGridIsRejected) {
   GridInfo g = only_grid(inspect(vel));
   EXPECT_EQ(g.type, "vec3s");
   EXPECT_EQ(g.active_voxels, 1u);
-  expect_error([&] { load_grid(vel, "vel"); }, {vel, "'vel'", "vec3s", "float"});
+  expect_vdb_error([&] { load_grid(vel, "vel"); }, {vel, "'vel'", "vec3s", "float"});
   VoxelGrid v = grid({});
   v.type = "vec3s";
-  expect_error([&] { write_grids({v}, path("v.vdb")); }, {path("v.vdb"), "vec3s", "float or half"});
+  expect_vdb_error([&] { write_grids({v}, path("v.vdb")); }, {path("v.vdb"), "vec3s", "float or half"});
 }
 
 // The fixture tests/data/vel.vdb: one vec3s grid "vel" with voxel (0, 0, 0) = (1, 2, 3) (OpenVDB 10).
@@ -303,16 +303,16 @@ TEST_F(VdbTest, VelocityFloatComponentsAndErrors) {
   }
   check_velocity_name(path("xyz.vdb"), "vel", "media[0].velocity.grid");
   // Neither a grid "v" nor v.x/y/z: the message names the key, the file and the grids present.
-  expect_error([&] { check_velocity_name(path("xyz.vdb"), "v", "media[0].velocity.grid"); },
-               {"media[0].velocity.grid", path("xyz.vdb"), "'v'", "'v.x'", "'vel.x'", "'density'"});
-  expect_error([&] { load_velocity(path("xyz.vdb"), "v", "media[0].velocity.grid"); },
-               {"media[0].velocity.grid", "no velocity grid"});
+  expect_vdb_error([&] { check_velocity_name(path("xyz.vdb"), "v", "media[0].velocity.grid"); },
+                   {"media[0].velocity.grid", path("xyz.vdb"), "'v'", "'v.x'", "'vel.x'", "'density'"});
+  expect_vdb_error([&] { load_velocity(path("xyz.vdb"), "v", "media[0].velocity.grid"); },
+                   {"media[0].velocity.grid", "no velocity grid"});
   // A float grid is not a vector grid.
-  expect_error([&] { load_velocity(path("xyz.vdb"), "density", "media[2].velocity.grid"); },
-               {"media[2].velocity.grid", "'density'", "type float", "vec3s"});
+  expect_vdb_error([&] { load_velocity(path("xyz.vdb"), "density", "media[2].velocity.grid"); },
+                   {"media[2].velocity.grid", "'density'", "type float", "vec3s"});
   // Only two of the three components.
   write_grids({comp("vel.x", 1, {}), comp("vel.y", 1, {})}, path("xy.vdb"));
-  expect_error([&] { load_velocity(path("xy.vdb"), "vel", "k"); }, {"k", "'vel.z'", "grids present"});
+  expect_vdb_error([&] { load_velocity(path("xy.vdb"), "vel", "k"); }, {"k", "'vel.z'", "grids present"});
 }
 
 // A procedural volume written with an offset and a velocity: the density's transform is translated (the
@@ -353,8 +353,8 @@ TEST_F(VdbTest, MissingGridListsNames) {
   EXPECT_EQ(infos[0].name, "density");
   EXPECT_EQ(infos[1].name, "temperature");
   EXPECT_NO_THROW(load_grid(path("two.vdb"), "temperature"));
-  expect_error([&] { load_grid(path("two.vdb"), "smoke"); },
-               {path("two.vdb"), "'smoke'", "density", "temperature"});
+  expect_vdb_error([&] { load_grid(path("two.vdb"), "smoke"); },
+                   {path("two.vdb"), "'smoke'", "density", "temperature"});
 }
 
 TEST_F(VdbTest, BadFiles) {
@@ -362,12 +362,12 @@ TEST_F(VdbTest, BadFiles) {
     std::ofstream f(path("garbage.vdb"), std::ios::binary);
     for (int i = 0; i < 4096; ++i) f.put(char(i * 131 + 7));
   }
-  expect_error([&] { load_grid(path("garbage.vdb"), "density"); }, {path("garbage.vdb"), "VDB"});
-  expect_error([&] { inspect(path("garbage.vdb")); }, {path("garbage.vdb")});
-  expect_error([&] { load_grid(path("nope.vdb"), "density"); }, {path("nope.vdb"), "not found"});
-  expect_error([&] { inspect(path("nope.vdb")); }, {path("nope.vdb"), "not found"});
+  expect_vdb_error([&] { load_grid(path("garbage.vdb"), "density"); }, {path("garbage.vdb"), "VDB"});
+  expect_vdb_error([&] { inspect(path("garbage.vdb")); }, {path("garbage.vdb")});
+  expect_vdb_error([&] { load_grid(path("nope.vdb"), "density"); }, {path("nope.vdb"), "not found"});
+  expect_vdb_error([&] { inspect(path("nope.vdb")); }, {path("nope.vdb"), "not found"});
   std::ofstream(path("empty.vdb")).close();
-  expect_error([&] { load_grid(path("empty.vdb"), "density"); }, {path("empty.vdb")});
+  expect_vdb_error([&] { load_grid(path("empty.vdb"), "density"); }, {path("empty.vdb")});
 
   // A valid file cut short.
   ProceduralSpec s;
@@ -378,14 +378,14 @@ TEST_F(VdbTest, BadFiles) {
     std::ofstream out(path("cut.vdb"), std::ios::binary);
     out.write(bytes.data(), std::streamsize(bytes.size() / 2));
   }
-  expect_error([&] { load_grid(path("cut.vdb"), "density"); }, {path("cut.vdb")});
+  expect_vdb_error([&] { load_grid(path("cut.vdb"), "density"); }, {path("cut.vdb")});
 }
 
 TEST_F(VdbTest, EmptyGridIsRejected) {
   write_grids({grid({})}, path("empty_grid.vdb"));
   GridInfo g = only_grid(inspect(path("empty_grid.vdb")));
   EXPECT_EQ(g.active_voxels, 0u);
-  expect_error([&] { load_grid(path("empty_grid.vdb"), "density"); }, {path("empty_grid.vdb"), "empty"});
+  expect_vdb_error([&] { load_grid(path("empty_grid.vdb"), "density"); }, {path("empty_grid.vdb"), "empty"});
 }
 
 TEST_F(VdbTest, NanVoxels) {
@@ -403,8 +403,8 @@ TEST_F(VdbTest, NanVoxels) {
   EXPECT_FLOAT_EQ(smp.trilinear({0.5, 0, 0}), 0.5f);
   EXPECT_EQ(d.value_max, 2.f);
   EXPECT_EQ(d.value_min, 0.f);
-  expect_error([&] { load_grid(path("nan.vdb"), "density", NanPolicy::Error); },
-               {path("nan.vdb"), "NaN", "2"});
+  expect_vdb_error([&] { load_grid(path("nan.vdb"), "density", NanPolicy::Error); },
+                   {path("nan.vdb"), "NaN", "2"});
 }
 
 TEST_F(VdbTest, TransformHonoured) {
@@ -455,20 +455,24 @@ TEST_F(VdbTest, ProceduralJson) {
   EXPECT_EQ(s.octaves, 2);
   ProceduralSpec t = procedural_from_json(to_json(s), "x");
   EXPECT_EQ(to_json(t), to_json(s));
-  expect_error(
+  expect_vdb_error(
       [] {
         procedural_from_json({{"kind", "box"}, {"colour", 1}}, "scene.json: media[0]");
       },
       {"scene.json: media[0]", "'colour'"});
-  expect_error([] { procedural_from_json({{"kind", "torus"}}, "m"); }, {"'kind'", "torus"});
-  expect_error([] { procedural_from_json({{"voxel_size", -1}}, "m"); }, {"'voxel_size'"});
-  expect_error([] { procedural_from_json({{"voxel_size", "big"}}, "m"); }, {"'voxel_size'"});
-  expect_error([] { procedural_from_json({{"center", {1, 2}}}, "m"); }, {"'center'"});
-  expect_error([] { procedural_from_json({{"kind", "cloud"}, {"falloff", 2}}, "m"); }, {"'falloff'"});
-  expect_error([] { procedural_from_json({{"kind", "height_fog"}, {"falloff", 0}}, "m"); }, {"'falloff'"});
-  expect_error([] { procedural_from_json({{"density", -1}}, "m"); }, {"'density'"});
-  expect_error([] { procedural_from_json({{"voxel_size", 1e-4}}, "m"); }, {"'voxel_size'", "voxels"});
-  expect_error([] { procedural_from_json(nlohmann::json::array(), "m"); }, {"m:"});
+  expect_vdb_error([] { procedural_from_json({{"kind", "torus"}}, "m"); }, {"'kind'", "torus"});
+  expect_vdb_error([] { procedural_from_json({{"voxel_size", -1}}, "m"); }, {"'voxel_size'"});
+  expect_vdb_error([] { procedural_from_json({{"voxel_size", "big"}}, "m"); }, {"'voxel_size'"});
+  expect_vdb_error([] { procedural_from_json({{"center", {1, 2}}}, "m"); }, {"'center'"});
+  expect_vdb_error([] { procedural_from_json({{"kind", "cloud"}, {"falloff", 2}}, "m"); }, {"'falloff'"});
+  expect_vdb_error(
+      [] {
+        procedural_from_json({{"kind", "height_fog"}, {"falloff", 0}}, "m");
+      },
+      {"'falloff'"});
+  expect_vdb_error([] { procedural_from_json({{"density", -1}}, "m"); }, {"'density'"});
+  expect_vdb_error([] { procedural_from_json({{"voxel_size", 1e-4}}, "m"); }, {"'voxel_size'", "voxels"});
+  expect_vdb_error([] { procedural_from_json(nlohmann::json::array(), "m"); }, {"m:"});
 }
 
 namespace {
@@ -620,8 +624,8 @@ TEST_F(VdbTest, MajorantAxisAlignedBox) {
   }
   check_conservative({{g, glm::dmat4(1), 0.5}}, maj, 5000, 5);
   EXPECT_EQ(build_majorant({}, 32).res, glm::ivec3(0));
-  expect_error([&] { build_majorant({{&g, glm::dmat4(1), -1.0}}, 8); }, {"density scale"});
-  expect_error([&] { build_majorant({{&g, glm::dmat4(1), 1.0}}, 0); }, {"resolution"});
+  expect_vdb_error([&] { build_majorant({{&g, glm::dmat4(1), -1.0}}, 8); }, {"density scale"});
+  expect_vdb_error([&] { build_majorant({{&g, glm::dmat4(1), 1.0}}, 0); }, {"resolution"});
 
   // Two separated boxes: the cells between them are empty.
   MajorantGrid two =

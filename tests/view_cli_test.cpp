@@ -25,7 +25,7 @@ using haze::test::Result;
 
 // A room of haze lit by the sun through three holes in its far wall: light shafts, both denoisers, no
 // grid lookups (quick permutations).
-constexpr const char* kScene = R"({
+constexpr const char* kViewScene = R"({
   "camera": {"position": [2.0, 1.3, 3.2], "target": [-0.4, 1.0, -1.2], "fov_y": 55},
   "surfaces": [
     {"mesh": {"kind": "plane", "size": [6, 6]}, "transform": {"rotate": [-90, 0, 0]}, "albedo": [0.7, 0.7, 0.7]},
@@ -93,7 +93,7 @@ class View : public ::testing::Test {
                       getpid());
     fs::remove_all(dir);
     fs::create_directories(dir);
-    std::ofstream(dir / "scene.json") << kScene;
+    std::ofstream(dir / "scene.json") << kViewScene;
   }
   void TearDown() override { fs::remove_all(dir); }
   std::string path(const std::string& name) const { return (dir / name).string(); }

@@ -56,14 +56,14 @@ struct Box {
   glm::dvec3 lo, hi, shift;
 };
 
-struct Case {
+struct MotionCase {
   int W, H;
   Cam prev, cur;
   std::vector<float> depth;  // per previous pixel
   std::vector<Box> media;
   std::function<glm::dvec3(glm::dvec3)> move;  // when set, moves every point (instead of the boxes)
 
-  Case(int w, int h, double tan_y = 0.4) : W(w), H(h), depth(size_t(w) * h, 0.f) {
+  MotionCase(int w, int h, double tan_y = 0.4) : W(w), H(h), depth(size_t(w) * h, 0.f) {
     prev.tan_y = cur.tan_y = tan_y;
     prev.tan_x = cur.tan_x = tan_y * w / h;
   }
@@ -86,7 +86,7 @@ struct Case {
   double pixels_per_unit_y(double z0) const { return H / (2 * z0 * prev.tan_y); }
 };
 
-glsl::GpuScene gpu_scene(const Case& s) {
+glsl::GpuScene gpu_scene(const MotionCase& s) {
   glsl::GpuScene g{};
   auto set = [](const Cam& c, glm::vec4& pos, glm::vec4& right, glm::vec4& up, glm::vec4& fwd) {
     pos = glm::vec4(glm::vec3(c.pos), 0);
@@ -112,7 +112,7 @@ struct Expected {
   bool ambiguous = false;  // a point within rounding of a pixel edge, a box face or a tie: a bad setup
 };
 
-Expected reference(const Case& s) {
+Expected reference(const MotionCase& s) {
   const size_t n = size_t(s.W) * s.H;
   Expected e;
   e.value.resize(n);
@@ -157,13 +157,13 @@ Expected reference(const Case& s) {
   return e;
 }
 
-// Runs the pass on a Case, on `vm` when given (a new instance otherwise). The depth sits at offset 1 of 3
-// floats per pixel (the others hold garbage), as when the caller points into a layer of a wider buffer.
+// Runs the pass on a MotionCase, on `vm` when given (a new instance otherwise). The depth sits at offset 1 of
+// 3 floats per pixel (the others hold garbage), as when the caller points into a layer of a wider buffer.
 // `motion` and `velocity_grids` replace the boxes' media motion when given.
-std::vector<glm::vec4> run(const Case& s, guiding::VolumeMotion* vm = nullptr,
-                           bool media_buffer_without_media = false, gpu::Timer* timer = nullptr,
-                           const std::vector<MediumMotion>* motion = nullptr,
-                           const gpu::Buffer* velocity_grids = nullptr) {
+std::vector<glm::vec4> project_case(const MotionCase& s, guiding::VolumeMotion* vm = nullptr,
+                                    bool media_buffer_without_media = false, gpu::Timer* timer = nullptr,
+                                    const std::vector<MediumMotion>* motion = nullptr,
+                                    const gpu::Buffer* velocity_grids = nullptr) {
   gpu::Context& ctx = context();
   const size_t n = size_t(s.W) * s.H;
   glsl::GpuScene gs = gpu_scene(s);
@@ -191,11 +191,16 @@ std::vector<glm::vec4> run(const Case& s, guiding::VolumeMotion* vm = nullptr,
 
   std::vector<MediumMotion> media;
   for (const Box& b : s.media)
-    media.push_back({glm::translate(glm::mat4(1), glm::vec3(b.shift)), glm::vec4(glm::vec3(b.lo), 0),
-                     glm::vec4(glm::vec3(b.hi), 0)});
+    media.push_back({glm::translate(glm::mat4(1), glm::vec3(b.shift)),
+                     glm::vec4(glm::vec3(b.lo), 0),
+                     glm::vec4(glm::vec3(b.hi), 0),
+                     {},
+                     {},
+                     {}});
   // An entry that would move every point, passed with count 0: nothing may move.
   if (media.empty() && media_buffer_without_media)
-    media.push_back({glm::translate(glm::mat4(1), glm::vec3(5)), glm::vec4(-100), glm::vec4(100)});
+    media.push_back(
+        {glm::translate(glm::mat4(1), glm::vec3(5)), glm::vec4(-100), glm::vec4(100), {}, {}, {}});
   if (motion) media = *motion;
   gpu::Buffer media_buf;
   if (!media.empty()) {
@@ -221,7 +226,7 @@ std::vector<glm::vec4> run(const Case& s, guiding::VolumeMotion* vm = nullptr,
 }
 
 // Compares the pass's output with the reference; returns the number of mismatching pixels.
-int compare(const Case& s, const std::vector<glm::vec4>& out, const Expected& e) {
+int compare(const MotionCase& s, const std::vector<glm::vec4>& out, const Expected& e) {
   int bad = 0;
   for (int y = 0; y < s.H; ++y)
     for (int x = 0; x < s.W; ++x) {
@@ -244,7 +249,7 @@ int compare(const Case& s, const std::vector<glm::vec4>& out, const Expected& e)
 TEST(VolumeMotion, PlanePointsMatchTheAnalyticMotion) {
   // The camera moves sideways parallel to the plane z = 5: every point moves by the same disparity.
   const double z0 = 5, disparity = 2.37;  // pixels, fraction well away from pixel edges
-  Case s(37, 23);
+  MotionCase s(37, 23);
   s.plane(z0);
   s.cur.pos = glm::dvec3(disparity / s.pixels_per_unit_x(z0), 0, 0);
   // Pixels without a point: zero, negative, infinite and NaN depths.
@@ -257,7 +262,7 @@ TEST(VolumeMotion, PlanePointsMatchTheAnalyticMotion) {
 
   gpu::Timer timer(context());
   guiding::VolumeMotion vm(context(), s.W, s.H);
-  std::vector<glm::vec4> out = run(s, &vm, false, &timer);
+  std::vector<glm::vec4> out = project_case(s, &vm, false, &timer);
   EXPECT_EQ(compare(s, out, e), 0);
   // Independently of the reference: the analytic motion (disparity, 0) and distance change.
   int landed = 0;
@@ -302,14 +307,14 @@ TEST(VolumeMotion, PlanePointsMatchTheAnalyticMotion) {
   e = reference(s);
   ASSERT_FALSE(e.ambiguous);
   EXPECT_GT(e.landed, s.W * s.H / 2);
-  EXPECT_EQ(compare(s, run(s), e), 0);
+  EXPECT_EQ(compare(s, project_case(s), e), 0);
   EXPECT_EQ(context().validation_messages(), 0u);
 }
 
 TEST(VolumeMotion, NearestPointWinsDeterministically) {
   const double z0 = 5;
   for (double disparity : {2.37, -2.37}) {
-    Case s(37, 23);
+    MotionCase s(37, 23);
     s.plane(z0);
     const double ppu = s.pixels_per_unit_x(z0);
     s.cur.pos = glm::dvec3(disparity / ppu, 0, 0);
@@ -335,7 +340,7 @@ TEST(VolumeMotion, NearestPointWinsDeterministically) {
     }
 
     guiding::VolumeMotion vm(context(), s.W, s.H);
-    std::vector<glm::vec4> out = run(s, &vm);
+    std::vector<glm::vec4> out = project_case(s, &vm);
     EXPECT_EQ(compare(s, out, e), 0);
     for (int y : {5, 12, 17}) {
       const glm::vec4 m = out[size_t(y) * s.W + target];
@@ -343,7 +348,7 @@ TEST(VolumeMotion, NearestPointWinsDeterministically) {
       EXPECT_NEAR(m.x, nearest - target, kMotionTol) << "disparity " << disparity << " row " << y;
     }
     for (int i = 0; i < 4; ++i) {
-      std::vector<glm::vec4> again = run(s, i % 2 ? &vm : nullptr);
+      std::vector<glm::vec4> again = project_case(s, i % 2 ? &vm : nullptr);
       EXPECT_EQ(0, std::memcmp(again.data(), out.data(), out.size() * sizeof(glm::vec4))) << "run " << i;
     }
   }
@@ -352,7 +357,7 @@ TEST(VolumeMotion, NearestPointWinsDeterministically) {
 
 TEST(VolumeMotion, MovingMediaCarryTheirPoints) {
   const double z0 = 5, disparity = 2.37;
-  Case s(37, 23);
+  MotionCase s(37, 23);
   s.plane(z0);
   const double ppx = s.pixels_per_unit_x(z0), ppy = s.pixels_per_unit_y(z0);
   s.cur.pos = glm::dvec3(disparity / ppx, 0, 0);
@@ -370,7 +375,7 @@ TEST(VolumeMotion, MovingMediaCarryTheirPoints) {
   Expected e = reference(s);
   ASSERT_FALSE(e.ambiguous);
   guiding::VolumeMotion vm(context(), s.W, s.H);
-  std::vector<glm::vec4> out = run(s, &vm);
+  std::vector<glm::vec4> out = project_case(s, &vm);
   EXPECT_EQ(compare(s, out, e), 0);
 
   // Independently of the reference: each landed point's motion is the disparity minus its medium's shift.
@@ -402,7 +407,7 @@ TEST(VolumeMotion, MovingMediaCarryTheirPoints) {
   // nothing of the previous run may be left in its keys).
   s.media.clear();
   e = reference(s);
-  EXPECT_EQ(compare(s, run(s, &vm, true), e), 0);
+  EXPECT_EQ(compare(s, project_case(s, &vm, true), e), 0);
   EXPECT_EQ(context().validation_messages(), 0u);
 }
 
@@ -456,7 +461,7 @@ TEST(VolumeMotion, VelocityGridMovesPointsWithTheField) {
 
   const glm::dmat4 T_prev(prev.media[0].transform.matrix()), T_now(now.media[0].transform.matrix());
   const double dt_scale = 2.0 / 2.0;  // scale / fps
-  Case s(37, 23);
+  MotionCase s(37, 23);
   s.plane(5);
   s.cur.pos = glm::dvec3(0.05, 0.02, -0.1);
   s.move = [&](glm::dvec3 X) {
@@ -466,10 +471,10 @@ TEST(VolumeMotion, VelocityGridMovesPointsWithTheField) {
   Expected e = reference(s);
   ASSERT_FALSE(e.ambiguous);
   EXPECT_GT(e.landed, s.W * s.H / 2);
-  std::vector<glm::vec4> out = run(s, nullptr, false, nullptr, &motion, &grids.table());
+  std::vector<glm::vec4> out = project_case(s, nullptr, false, nullptr, &motion, &grids.table());
   EXPECT_EQ(compare(s, out, e), 0);
   // The field moves the points by pixels, not by rounding: without it they land elsewhere.
-  Case rigid = s;
+  MotionCase rigid = s;
   rigid.move = [&](glm::dvec3 X) { return glm::dvec3(T_now * glm::inverse(T_prev) * glm::dvec4(X, 1)); };
   Expected er = reference(rigid);
   double shift = 0;
@@ -588,23 +593,23 @@ TEST(VolumeMotion, VelocitySequenceMatchesTheAnalyticMotion) {
 
 TEST(VolumeMotion, TinyAndOddSizes) {
   // 1x1: the point straight ahead at distance 5, the camera moves so that it shifts by 0.2 pixel.
-  Case one(1, 1);
+  MotionCase one(1, 1);
   one.plane(5);
   one.cur.pos = glm::dvec3(0.2 / one.pixels_per_unit_x(5), 0, 0);
-  std::vector<glm::vec4> out = run(one);
+  std::vector<glm::vec4> out = project_case(one);
   ASSERT_EQ(out.size(), 1u);
   EXPECT_EQ(out[0].w, 1.f);
   EXPECT_NEAR(out[0].x, 0.2, kMotionTol);
   EXPECT_NEAR(out[0].y, 0, kMotionTol);
   EXPECT_NEAR(out[0].z, glm::length(glm::dvec3(0, 0, 5) - one.cur.pos) - 5, kDeltaTol);
   one.depth[0] = 0;
-  out = run(one);
+  out = project_case(one);
   EXPECT_EQ(out[0], glm::vec4(surface_motion(0, 0), 0, 0));
 
   // Sizes that are no multiple of the 8x8 workgroup, a moving camera (turning too where the image is wide
   // enough to keep the points).
   for (glm::ivec2 size : {glm::ivec2(13, 9), glm::ivec2(1, 17), glm::ivec2(21, 1)}) {
-    Case s(size.x, size.y);
+    MotionCase s(size.x, size.y);
     s.plane(4.3);
     s.cur.pos = glm::dvec3(0.3 / s.pixels_per_unit_x(4.3), 0.2 / s.pixels_per_unit_y(4.3), -0.23);
     if (size.x > 1 && size.y > 1) {
@@ -615,7 +620,7 @@ TEST(VolumeMotion, TinyAndOddSizes) {
     Expected e = reference(s);
     ASSERT_FALSE(e.ambiguous) << size.x << "x" << size.y;
     EXPECT_GT(e.landed, 0);
-    EXPECT_EQ(compare(s, run(s), e), 0) << size.x << "x" << size.y;
+    EXPECT_EQ(compare(s, project_case(s), e), 0) << size.x << "x" << size.y;
   }
   EXPECT_EQ(context().validation_messages(), 0u);
 }
