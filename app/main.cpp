@@ -434,6 +434,9 @@ int main(int argc, char** argv) {
   bench->add_option("--efficiency-cases", bo.efficiency_cases,
                     "efficiency cases, comma-separated: dense_cloud, haze_shaft, point_in_box, env_cloud, "
                     "sheets (default: all)");
+  bench->add_option("--efficiency-set", bo.efficiency_set,
+                    "JSON object merged into side a of every efficiency case (the default estimator, or the "
+                    "guided side), e.g. '{\"render\": {\"rr_threshold\": 0.2}}'");
   bench->add_option("--shafts-size", bo.shafts_size, "image size of the shaft sequence (WIDTHxHEIGHT)");
   bench->add_option("--shafts-frames", bo.shafts_frames, "frames of the shaft sequence")
       ->check(CLI::Range(1, 10000));

@@ -607,6 +607,18 @@ int run(const Options& o, const gpu::ContextOptions& co) {
     }
     if (!set_patch.is_object()) throw std::runtime_error("--shafts-set: expected a JSON object");
   }
+  json efficiency_set = json::object();
+  if (!o.efficiency_set.empty()) {
+    try {
+      efficiency_set = json::parse(o.efficiency_set);
+    } catch (const std::exception& e) {
+      throw std::runtime_error(
+          fmt::format("--efficiency-set: not JSON ({}); expected an object such as '{{\"render\": "
+                      "{{\"rr_threshold\": 0.2}}}}'",
+                      e.what()));
+    }
+    if (!efficiency_set.is_object()) throw std::runtime_error("--efficiency-set: expected a JSON object");
+  }
   if (o.shafts_reference_spp < 1)
     throw std::runtime_error(fmt::format("--shafts-reference-spp {}: must be >= 1", o.shafts_reference_spp));
   if (o.spp < 1) throw std::runtime_error(fmt::format("--spp {}: must be >= 1", o.spp));
@@ -669,6 +681,7 @@ int run(const Options& o, const gpu::ContextOptions& co) {
     eo.seeds = o.efficiency_seeds;
     eo.scale = o.efficiency_scale;
     eo.cases = efficiency_cases;
+    eo.set_a = efficiency_set;
     j["efficiency"] = bench_efficiency(ctx, eo);
   }
   if (wants("view")) j["view"] = bench_view(co, s, ViewBenchOptions{});

@@ -23,7 +23,8 @@ struct Options {
   int efficiency_seeds = 4;                         // estimator efficiency: renders per side (0: skip)
   double efficiency_scale = 1.0;                    // its image sizes and sample counts, times this
   std::string efficiency_cases;                     // comma-separated case names; empty: all
-  std::string only;                                 // comma-separated part names; empty: all
+  std::string efficiency_set;  // JSON merged into side a of every efficiency case (a change to measure)
+  std::string only;            // comma-separated part names; empty: all
   // The shaft sequence (bench/shafts_bench.hpp).
   std::string shafts_size = "192x108";
   int shafts_frames = 12;

@@ -279,14 +279,16 @@ json bench_efficiency(gpu::Context& ctx, const EfficiencyOptions& o) {
   json out = {{"seeds", o.seeds},
               {"reference_factor", o.reference_factor},
               {"scale", o.scale},
+              {"set_a", o.set_a},
               {"cases", json::array()}};
   for (const std::string& name : efficiency_case_names()) {
     if (!o.cases.empty() && std::find(o.cases.begin(), o.cases.end(), name) == o.cases.end()) continue;
-    const Case c = name == "dense_cloud"    ? dense_cloud(o.scale)
-                   : name == "haze_shaft"   ? haze_shaft(o.scale)
-                   : name == "point_in_box" ? point_in_box(o.scale)
-                   : name == "env_cloud"    ? env_cloud(o.scale)
-                                            : sheets(o.scale);
+    Case c = name == "dense_cloud"    ? dense_cloud(o.scale)
+             : name == "haze_shaft"   ? haze_shaft(o.scale)
+             : name == "point_in_box" ? point_in_box(o.scale)
+             : name == "env_cloud"    ? env_cloud(o.scale)
+                                      : sheets(o.scale);
+    c.a.merge_patch(o.set_a);
     out["cases"].push_back(run_case(ctx, c, o));
   }
   return out;
@@ -297,6 +299,7 @@ void print_efficiency(const json& j) {
       "estimator efficiency 1 / (relMSE x trace time) against a converged reference, over {} seeds (ratio of "
       "means; per-seed range)\n",
       j["seeds"].get<int>());
+  if (j.contains("set_a") && !j["set_a"].empty()) fmt::print("  side a with {}\n", j["set_a"].dump());
   fmt::print("  {:<14}{:>10}{:>8}{:>8}{:>8}{:>8}{:>12}{:>12}\n", "case", "a / b", "min", "max", "spp a",
              "spp b", "relMSE a", "relMSE b");
   for (const auto& c : j["cases"]) {

@@ -18,6 +18,7 @@ struct EfficiencyOptions {
   int reference_factor = 16;  // the reference has this many times the default estimator's samples
   double scale = 1.0;         // image sizes and sample counts are the cases' times this (quick runs: 0.5)
   std::vector<std::string> cases;  // empty: all (dense_cloud, haze_shaft, point_in_box, env_cloud, sheets)
+  nlohmann::json set_a = nlohmann::json::object();  // merged into side a of every case (not the reference)
 };
 
 // The case names in the order they run.

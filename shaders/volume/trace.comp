@@ -251,6 +251,7 @@ void main() {
   known.capped = false;
   known.violated = false;
   bool q_known = false;
+  float q_rr = rr_T;  // the roulette threshold of the current ratio-tracking query
   for (uint pass = 0u; pass < passes; ++pass) {
     to_surface = false;
     d = cam_d;
@@ -376,8 +377,9 @@ void main() {
     for (;;) {
       // The pass's first query may be known in closed form (haze_only).
       TrackResult r = known;
-      if (!q_known) r = track(q_o, q_d, q_t0, q_t1, q_mode, q_eval, rr_T, rr_T_survive, rng);
+      if (!q_known) r = track(q_o, q_d, q_t0, q_t1, q_mode, q_eval, q_rr, rr_T_survive, rng);
       q_known = false;
+      q_rr = rr_T;
       n_lookups += r.lookups;
       n_null += r.nulls;
       if (r.hit) n_real += 1u;
@@ -604,6 +606,14 @@ void main() {
           q_d = ls.wi;
           q_t0 = 0.0f;
           q_t1 = min(ls.dist, media_exit(o, ls.wi));
+#if !HAZE_VOLPATH
+          // The roulette compares the shadow ray's contribution T c with rr_T, not T alone: c is pending
+          // relative to the path's first vertex lit through an isotropic phase, so the shadow rays of dim
+          // vertices (back-scattering, low throughput) stop early. c <= 16 bounds the work of bright ones.
+          float c = max(pending.x, max(pending.y, pending.z)) /
+                    max(beta_start * max(ls.Li.x, max(ls.Li.y, ls.Li.z)) * INV_4PI, 1e-30f);
+          q_rr = min(rr_T / clamp(c, 1e-30f, 16.0f), 1.0f);
+#endif
         } else {
           pending = vec3(0.0f);
         }
