@@ -2,7 +2,7 @@
 BUILD ?= build
 JOBS ?= $(shell nproc)
 
-.PHONY: setup configure build demo test bench clean
+.PHONY: setup configure build demo demo-assets smoke test bench clean
 
 setup:
 	bash scripts/setup.sh
@@ -16,6 +16,14 @@ build: configure
 demo: build
 	MESA_SHADER_CACHE_DIR=$(CURDIR)/$(BUILD)/mesa-cache $(BUILD)/haze render scenes/demo.json --out out/demo
 	MESA_SHADER_CACHE_DIR=$(CURDIR)/$(BUILD)/mesa-cache $(BUILD)/haze render scenes/room.json --frames 0:0 --out out/room
+
+# scenes/smoke.json's generated assets (scenes/assets/, not committed): a drifting smoke sequence with its
+# velocity and a sky map, written by the project's own generators.
+demo-assets: build
+	HAZE=$(BUILD)/haze bash scripts/make_demo_assets.sh
+
+smoke: demo-assets
+	MESA_SHADER_CACHE_DIR=$(CURDIR)/$(BUILD)/mesa-cache $(BUILD)/haze render scenes/smoke.json --out out/smoke
 
 test: build
 	cd $(BUILD) && ctest --output-on-failure -j $(JOBS)

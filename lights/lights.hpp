@@ -78,6 +78,8 @@ class Lights : public gpu::DeviceData {
   size_t count() const { return list_.size(); }
   size_t local_count() const { return local_; }  // point and spot lights
   bool has_local() const { return local_ > 0; }
+  bool has_environment() const { return scene_.environment.has_value(); }
+  bool has_area() const { return area_; }  // emissive triangles
   const std::vector<glsl::GpuLight>& list() const { return list_; }
   const std::vector<double>& powers() const { return powers_; }
   const AliasTable& choice() const { return choice_; }

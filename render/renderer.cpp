@@ -278,6 +278,9 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   lights_.declare(t);
   if (s.render.max_depth > 1) t.define("HAZE_MULTI");
   if (s.render.estimator == "volpath") t.define("HAZE_VOLPATH");
+  // Walk rays (more than one event) reach the environment and emissive triangles, which NEE samples too.
+  if (s.render.mis == "power" && s.render.max_depth > 1 && (lights_.has_environment() || lights_.has_area()))
+    t.define("HAZE_MIS");
   surfaces_.declare(t);
   guide_.declare(t);
   trace_ = kernel(std::move(t.push(4)));

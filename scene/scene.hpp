@@ -158,6 +158,9 @@ struct RenderSettings {
   // "default": haze's estimator (docs/rendering.md); "volpath": pbrt-v4's VolPathIntegrator for grey media,
   // the baseline of the efficiency benchmark.
   std::string estimator = "default";
+  // "power": walk rays that escape to the environment or hit an emissive triangle add their power-heuristic
+  // share and NEE the rest; "nee": NEE alone carries those lights (docs/rendering.md, "Lights").
+  std::string mis = "power";
   std::string frames;  // "A:B", both included; "" = the animation's first to last key (0:0 without one)
   float fps = 24.f;    // time base: frame k is at k / fps seconds
 
@@ -388,6 +391,9 @@ void reflect(V& v, RenderSettings& r) {
   v.field("estimator", r.estimator, Choices{"default", "volpath"},
           "default: haze's estimator; volpath: pbrt-v4's VolPathIntegrator (delta tracking, NEE at every "
           "collision), the efficiency benchmark's baseline");
+  v.field("mis", r.mis, Choices{"power", "nee"},
+          "power: walk rays that escape to the environment or hit an emissive triangle add their "
+          "power-heuristic share, NEE the rest; nee: NEE alone carries those lights");
   v.field(
       "frames", r.frames,
       "frames to render, \"A:B\" with both included; \"\": the animation's first to last key (0:0 without)");

@@ -21,7 +21,7 @@ void DeviceSurfaces::update(const scene::Scene& s, const scene::Scene& p) {
     glsl::GpuInstance g{};
     if (geometry_.instance_texture[i] >= 0) g.texture = placement[size_t(geometry_.instance_texture[i])];
     g.albedo = glm::vec4(s.surfaces[i].albedo, 0);
-    g.emission = glm::vec4(s.surfaces[i].emission, 0);
+    g.emission = glm::vec4(s.surfaces[i].emission, glm::uintBitsToFloat(geometry_.instance_first_emitter[i]));
     glm::mat4 now = s.surfaces[i].transform.matrix();
     glm::mat4 before = i < p.surfaces.size() ? p.surfaces[i].transform.matrix() : now;
     g.world_to_prev_world = glm::mat4(glm::dmat4(before) * glm::inverse(glm::dmat4(now)));

@@ -162,11 +162,15 @@ SceneGeometry build_geometry(const scene::Scene& s, const SceneGeometry* previou
     g.instances.push_back({uint32_t(i), sf.transform.matrix()});
   }
   std::vector<glsl::GpuTriangle> world = world_triangles(g.meshes, g.instances);
+  g.instance_first_emitter.assign(g.instances.size(), 0);
   for (const auto& t : world) {
     uint32_t inst = instance_id(t);
     glm::vec3 e = s.surfaces[inst].emission;
-    if (e.x > 0 || e.y > 0 || e.z > 0)
+    if (e.x > 0 || e.y > 0 || e.z > 0) {
+      // world_triangles() lists an instance's triangles together, in primitive order.
+      if (primitive_id(t) == 0) g.instance_first_emitter[inst] = uint32_t(g.emitters.size());
       g.emitters.push_back({glm::vec3(t.v0), glm::vec3(t.v1), glm::vec3(t.v2), e});
+    }
   }
   g.bvh = build_bvh(world);
   if (!g.textures.empty()) {

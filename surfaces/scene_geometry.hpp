@@ -27,7 +27,10 @@ struct SceneGeometry {
   std::vector<std::string> sources;  // what each mesh was made from, for reuse across frames
   std::vector<Instance> instances;   // one per scene surface, same order
   Bvh bvh;
-  std::vector<EmissiveTriangle> emitters;
+  std::vector<EmissiveTriangle> emitters;  // the emissive instances' triangles, in instance order
+  // Per instance, the index in `emitters` of its first triangle (its triangle p is emitters[first + p]);
+  // 0 for an instance that does not emit.
+  std::vector<uint32_t> instance_first_emitter;
   // Albedo textures, each file once; instance_texture[i] indexes them (-1: none).
   std::vector<Texture> textures;
   std::vector<std::string> texture_paths;

@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <functional>
+#include <limits>
 #include <random>
 
 #include "shaders/glsl.hpp"
@@ -335,6 +336,27 @@ TEST(Cone, UniformConeStaysInsideAndIsUniformInCosine) {
   double chi2 = chi2_statistic(
       cs, cos_max, 1, 50, [&](double) { return 1 / (1 - cos_max); }, &df);
   EXPECT_LT(chi2, chi2_critical(df));
+}
+
+// The power heuristic's two weights of one sample sum to 1 (so MIS stays unbiased) at any ratio of the
+// densities, including 0, infinity and squares beyond the float range, and are p_a^2 / (p_a^2 + p_b^2).
+TEST(MisPower, WeightsSumToOneAndMatchTheHeuristic) {
+  const float inf = std::numeric_limits<float>::infinity();
+  const float ps[] = {0.f, 1e-30f, 1e-3f, 0.5f, 1.f, 3.f, 1e20f, 3e38f, inf};
+  for (float a : ps)
+    for (float b : ps) {
+      if (a == 0.f && b == 0.f) continue;  // a sample neither strategy can produce
+      const float wa = mis_power(a, b), wb = mis_power(b, a);
+      EXPECT_TRUE(std::isfinite(wa) && wa >= 0.f && wa <= 1.f) << a << " " << b;
+      EXPECT_NEAR(wa + wb, 1.f, 1e-6f) << a << " " << b;
+      const double da = a, db = b;
+      if (std::isfinite(da * da + db * db) && da * da + db * db > 0) {
+        EXPECT_NEAR(wa, da * da / (da * da + db * db), 1e-6) << a << " " << b;
+      }
+    }
+  EXPECT_EQ(mis_power(2.f, 0.f), 1.f);  // the other strategy cannot produce the sample
+  EXPECT_EQ(mis_power(0.f, 2.f), 0.f);
+  EXPECT_NEAR(mis_power(1.f, 1.f), 0.5f, 1e-7f);
 }
 
 TEST(Color, LuminanceAndTonemapsAreBounded) {

@@ -66,6 +66,21 @@ HAZE_INLINE vec3 hg_sample(vec3 travel_dir, float g, vec2 u) {
   return direction_around(travel_dir, hg_sample_mu(g, u.x), 2.0f * PI * u.y);
 }
 
+// Power heuristic (Veach 1997) of the strategy with density p_a against one with p_b, both over the same
+// measure: p_a^2 / (p_a^2 + p_b^2), written with the ratio so that no square overflows; 1 where p_b is 0 (the
+// other strategy cannot produce the sample), and an infinite density is taken as the largest float.
+HAZE_INLINE float mis_power(float p_a, float p_b) {
+  p_a = min(p_a, 3.4e38f);
+  p_b = min(p_b, 3.4e38f);
+  if (!(p_b > 0.0f)) return 1.0f;
+  if (p_a >= p_b) {
+    float r = p_b / p_a;
+    return 1.0f / (1.0f + r * r);
+  }
+  float r = p_a / p_b;
+  return r * r / (1.0f + r * r);
+}
+
 // Equi-angular sampling of t on [t0, t1] along o + t d towards a point c (Kulla and Fajardo 2012).
 struct EquiAngular {
   float delta;  // t of the closest approach

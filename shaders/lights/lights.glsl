@@ -87,10 +87,21 @@ float environment_pdf(vec3 wi) {
 }
 #endif
 
-vec3 background(vec3 d) {
-  vec3 L = scene.env.rgb;  // zero with a map
+#if HAZE_ENV
+// The environment's radiance towards d (the sun's disc not included).
+vec3 environment_Le(vec3 d) {
 #if HAZE_ENV_MAP
-  L += environment_radiance(d);
+  return environment_radiance(d);
+#else
+  return scene.env.rgb;
+#endif
+}
+#endif
+
+vec3 background(vec3 d) {
+  vec3 L = vec3(0.0f);
+#if HAZE_ENV
+  L = environment_Le(d);
 #endif
   if (scene.sun_direction.w < 1.0f && dot(d, scene.sun_direction.xyz) >= scene.sun_direction.w)
     L += scene.sun_radiance.rgb;
@@ -111,6 +122,22 @@ float light_choice_pmf(uint l) {
   return lights[l].radiance.w;
 }
 
+// The lights that rays other than shadow rays reach, so that light sampling and phase/BSDF sampling both
+// produce their paths: the environment and emissive triangles (MIS weighs the two; the sun, points and
+// spots are reached by light sampling alone).
+bool light_reached_by_walks(uint l) {
+  uint type = uint(lights[l].position.w);
+  return type == LIGHT_ENV || type == LIGHT_TRIANGLE;
+}
+
+#if HAZE_ENV
+// Solid-angle density with which sample_light() produces direction wi towards the environment, the choice
+// included.
+float environment_light_pdf(vec3 wi) {
+  return light_choice_pmf(scene.counts.y - 1u) * environment_pdf(wi);
+}
+#endif
+
 // The alias table over the light list (lights/lights.hpp, alias_table): with U the 24 random bits of u,
 // slot s = floor(U n / 2^24) keeps s when U n mod 2^24 is under its threshold, else takes its alias.
 uint light_choose(float u) {
@@ -123,6 +150,12 @@ uint light_choose(float u) {
 }
 
 #if HAZE_AREA
+// The entry of emissive triangle k (in the surfaces' emitter order, surfaces/scene_geometry.hpp) in the light
+// list: the point and spot lights come first.
+uint emitter_light(uint k) {
+  return scene.counts.z + k;
+}
+
 // Solid-angle density at x of sampling light l (an emissive triangle) uniformly in area, for the direction
 // wi that reaches it at distance t: t^2 / (A |cos_l|); the choice not included.
 float triangle_pdf(uint l, vec3 wi, float t) {

@@ -29,7 +29,7 @@ struct GpuTriangle {
 // Per surface instance: its material and where its points were in the previous frame.
 struct GpuInstance {
   vec4 albedo;               // rgb Lambertian reflectance
-  vec4 emission;             // rgb emitted radiance
+  vec4 emission;             // rgb emitted radiance; w (bits): index of its first triangle among the emitters
   mat4 world_to_prev_world;  // previous object_to_world * inverse(current object_to_world)
   uvec4 texture;  // albedo texture: x first texel in the texel buffer, y width, z height; w 1 if any
 };

@@ -7,6 +7,11 @@
 // walk ray, real collisions absorb or scatter, NEE at every vertex, plain ratio tracking with pbrt's
 // roulette.
 //
+// With HAZE_MIS (render.mis "power", walks of more than one event, and an environment or emissive triangles)
+// both estimators weigh the two strategies that reach the environment and emissive triangles, light
+// sampling at NEE and the walk's phase/BSDF sampling, by the power heuristic on their per-vertex densities;
+// without it NEE alone carries these lights and walk rays that escape or hit an emitter add nothing.
+//
 // The estimator runs as a small state machine whose loop issues one tracking query per iteration, so the
 // tracker (and its single density-lookup call site) is inlined once.
 #extension GL_GOOGLE_include_directive : require
@@ -227,6 +232,9 @@ void main() {
   bool on_surface = false;    // the vertex is on a surface (normal n, albedo alb) rather than in a medium
   vec3 n = vec3(0.0f, 1.0f, 0.0f), alb = vec3(0.0f);
   vec3 ns = n;  // the shading normal (surfaces/material.glsl); n, the geometric one, offsets rays
+#if HAZE_MIS
+  float p_walk = 0.0f;  // solid-angle density of the current walk ray's direction (phase or cosine sampling)
+#endif
   // Surface the current walk ray reaches if no medium stops it first.
   bool walk_hit = false;
 #if HAZE_SURFACES
@@ -465,6 +473,9 @@ void main() {
             // Lambertian: cosine sampling makes the weight the albedo. A bounce below the geometric surface
             // reflects nothing (no light leaks through a coarse mesh's terminator).
             d = sample_cosine_hemisphere(ns, vec2(rng_next(rng), rng_next(rng)));
+#if HAZE_MIS
+            p_walk = max(dot(ns, d), 0.0f) * INV_PI;
+#endif
             beta *= alb;
             x += n * surface_epsilon(x);
             walk_on = dot(d, n) > 0.0f;
@@ -479,7 +490,11 @@ void main() {
             }
 #endif
           } else {
-            d = hg_sample(d, g, vec2(rng_next(rng), rng_next(rng)));
+            vec3 d_in = d;
+            d = hg_sample(d_in, g, vec2(rng_next(rng), rng_next(rng)));
+#if HAZE_MIS
+            p_walk = hg_phase(dot(d, d_in), g);
+#endif
           }
         }
         if (walk_on) {
@@ -504,8 +519,9 @@ void main() {
         next_sample = true;
       } else {  // ST_WALK
         bool vertex = false;
+        bool camera_ray = false;  // volpath's camera ray is its first walk ray
 #if HAZE_VOLPATH
-        bool camera_ray = depth == 0u;
+        camera_ray = depth == 0u;
 #if HAZE_CHROMATIC
         if (!r.capped) beta *= r.T;  // the spectral tracking weight
 #endif
@@ -542,7 +558,19 @@ void main() {
         }
 #if HAZE_SURFACES
         else if (walk_hit) {
-          // Emission of surfaces reached by the walk is counted by NEE, which samples emissive triangles.
+          // Emission of surfaces reached by the walk: NEE samples emissive triangles too, so the walk's share
+          // is its MIS weight (with HAZE_MIS; else NEE alone counts it).
+#if HAZE_MIS && HAZE_AREA
+          GpuInstance inst = instances[walk_h.instance];
+          if (!camera_ray && any(greaterThan(inst.emission.rgb, vec3(0.0f)))) {
+            uint l = emitter_light(floatBitsToUint(inst.emission.w) + walk_h.primitive);
+            float w = mis_power(p_walk, light_choice_pmf(l) * triangle_pdf(l, d, q_t1));
+            if (to_surface)
+              L_surf += beta * inst.emission.rgb * w;
+            else
+              L_vol += beta * inst.emission.rgb * w;
+          }
+#endif
           x = x + d * q_t1;
           n = dot(walk_h.normal, d) < 0.0f ? walk_h.normal : -walk_h.normal;
           ns = surface_normal(walk_h, n);
@@ -558,6 +586,17 @@ void main() {
             albedo0 = alb;
           }
 #endif
+        }
+#endif
+#if HAZE_MIS && HAZE_ENV
+        else if (!camera_ray) {
+          // The walk ray left the scene: delta tracking reached its end with probability T, so the
+          // environment's radiance times the throughput and the walk's MIS weight (the sun is NEE's alone).
+          vec3 Le = beta * environment_Le(d) * mis_power(p_walk, environment_light_pdf(d));
+          if (to_surface)
+            L_surf += Le;
+          else
+            L_vol += Le;
         }
 #endif
         if (vertex) {
@@ -596,6 +635,18 @@ void main() {
         else
 #endif
           pending = beta * hg_phase(dot(ls.wi, d), g) * ls.Li;
+#if HAZE_MIS
+        // The walk goes on from this vertex when depth < max_depth, and may then reach the same light: NEE's
+        // share is the complementary power-heuristic weight (delta lights and the sun keep 1).
+        if (depth < max_depth && ls.pdf > 0.0f && light_reached_by_walks(ls.light)) {
+#if HAZE_SURFACES
+          float p_w = on_surface ? surface_cosine(n, ns, ls.wi) * INV_PI : hg_phase(dot(ls.wi, d), g);
+#else
+          float p_w = hg_phase(dot(ls.wi, d), g);
+#endif
+          pending *= mis_power(ls.pdf, p_w);
+        }
+#endif
         bool visible = any(greaterThan(pending, vec3(0.0f)));
 #if HAZE_SURFACES
         // Surfaces block shadow rays; an area light's own triangle is excluded by stopping just short of it.
