@@ -70,8 +70,13 @@ void Svgf::make_geometry_buffers() {
   if (!own_geometry()) {
     geo_ = gpu::Buffer();
     prev_geo_ = gpu::Buffer();
+    if (!gpack_.valid())
+      gpack_ = gpu::Buffer(ctx_, fmt::format("svgf.{} packed geometry", name_),
+                           fmt::format("svgf.{} per-frame temporaries", name_),
+                           uint64_t(width_) * height_ * 8, "f32 depth, 2 x snorm16 octahedral normal");
     return;
   }
+  gpack_ = gpu::Buffer();
   if (geo_.valid()) return;
   const uint64_t pixels = uint64_t(width_) * height_;
   geo_ = gpu::Buffer(ctx_, fmt::format("svgf.{} geometry", name_),
@@ -108,6 +113,10 @@ void Svgf::create_kernels() {
     for (const char* layer : {"g_depth", "g_normal", "g_albedo"})
       d.buffer(std::string(prefix) + layer, pixels * 16, 16);
   };
+  // The taps' packed geometry (G-buffer geometry only): written by accumulation, read by the spatial passes.
+  auto gpack = [&](gpu::KernelDecl& d) {
+    if (!own) d.buffer("gpack", pixels * 8);
+  };
   const uint64_t half4 = pixels * 8, moments = pixels * glsl::SVGF_MOMENTS_STRIDE * 4;
   auto make = [&](gpu::KernelDecl d) {
     gpu::Kernel k(ctx_, std::move(d));
@@ -129,16 +138,19 @@ void Svgf::create_kernels() {
   a.buffer("colour", pixels * 12);
   gbuffer(a, "");
   gbuffer(a, "prev_");
+  gpack(a);
   a.buffer("motion", pixels * 8).buffer("percentiles", blocks * 16).buffer("hist_colour", half4);
   a.buffer("hist_moments", moments).buffer("out_colour", half4).buffer("out_moments", half4);
   accumulate_pass_ = make(std::move(a.push(8).specialize({classic})));
   gpu::KernelDecl v = decl("variance");
   gbuffer(v, "");
+  gpack(v);
   v.buffer("acc_colour", half4).buffer("acc_moments", half4).buffer("out_colour", half4);
   v.buffer("hist_moments", moments);
   variance_pass_ = make(std::move(v.specialize({classic})));
   gpu::KernelDecl f = decl("filter");
   gbuffer(f, "");
+  gpack(f);
   f.buffer("in_colour", half4).buffer("out_colour", half4).push(4);
   weight_sum_pass_ = gpu::Kernel();
   if (splat()) {
@@ -240,6 +252,7 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
   } else {
     in.gbuffer->bind(common);
     in.prev_gbuffer->bind(common);
+    common.set("gpack", gpack_);
   }
 
   const uint32_t gx = (width_ + 7) / 8, gy = (height_ + 7) / 8;

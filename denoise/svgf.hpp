@@ -104,6 +104,7 @@ class Svgf {
   // gradient (geo) and the last frame's depth (prev_geo).
   gpu::Buffer params_buf_, percentiles_, temp_[2], history_, moments_, taa_, geo_, prev_geo_;
   gpu::Buffer weight_sum_;  // normalization "splat": per pixel the sum of the weights it gives away
+  gpu::Buffer gpack_;       // G-buffer geometry: the taps' depth and normal, one word (svgf_common.glsl)
   gpu::Kernel geometry_pass_[2], percentiles_pass_, accumulate_pass_, variance_pass_, filter_pass_, taa_pass_;
   gpu::Kernel weight_sum_pass_;
   bool splat() const { return params_.normalization == "splat" && params_.mode != "classic"; }

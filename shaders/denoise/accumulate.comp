@@ -40,7 +40,8 @@ layout(push_constant) uniform Push {
 pc;
 
 #include "common/rng.glsl"
-#define SVGF_GEO_ACCESS  // own geometry: the accumulated virtual point depth is written back into geo
+#define SVGF_GEO_ACCESS    // own geometry: the accumulated virtual point depth is written back into geo
+#define SVGF_GPACK_ACCESS  // G-buffer geometry: this pass packs the taps' words for the spatial passes
 #include "denoise/svgf_common.glsl"
 
 // Block percentiles, bilinear between block centres.
@@ -122,6 +123,9 @@ void main() {
   uint rng = rng_init(0x5f3759dfu, p, pc.frame);
 
   GPixel c = g_load(p);
+#ifdef BINDING_gpack
+  gpack[p] = g_pack(g_depth[p], g_normal[p]);
+#endif
   uint ib = p * P.layout_in.x + P.layout_in.y;
   vec3 col = vec3(colour[ib], colour[ib + 1u], colour[ib + 2u]);
   if (!svgf_finite(vec4(col, 0.0f))) col = vec3(0.0f);

@@ -72,7 +72,7 @@ void tap(ivec2 pix, ivec2 o, float k) {
   if (!inside(qi)) return;
   uint qp = uint(qi.y) * P.size.x + uint(qi.x);
   vec4 cq = unpack_half4(in_colour[qp]);
-  GPixel q = g_load(qp);
+  GPixel q = g_load_tap(qp);
   float Yq = luminance(cq.rgb);
   vec2 offset = vec2(o * gap);
   float w;

@@ -87,10 +87,48 @@ GPixel g_load(uint p) {
 GPixel g_load_prev(uint p) {
   return g_point(prev_geo[p], vec2(0.0f));
 }
+
+// A tap of the spatial passes: the geometry is one 8-byte word already.
+GPixel g_load_tap(uint p) {
+  return g_load(p);
+}
 #else
 #ifdef BINDING_g_depth
 GPixel g_load(uint p) {
   return g_unpack(g_depth[p], g_normal[p], g_albedo[p]);
+}
+#endif
+#ifdef BINDING_gpack
+// What the spatial passes (variance, filter) read at their taps, packed by the accumulation pass into one
+// 8-byte word per pixel: depth (f32 bits) and the octahedral normal (2 x snorm16). A tap then reads 8 bytes
+// instead of two 16-byte G-buffer layers, which is what the filter's time follows on lavapipe at the large
+// gaps (cache misses). Taps carry no depth gradient, albedo or instance: only the centre's are used, except
+// by the splat normalization's symmetric weight, which reads the gradient from the G-buffer.
+#ifndef SVGF_GPACK_ACCESS
+#define SVGF_GPACK_ACCESS readonly
+#endif
+layout(std430, binding = BINDING_gpack) SVGF_GPACK_ACCESS buffer GPack {
+  uvec2 gpack[];
+};
+
+uvec2 g_pack(vec4 depth, vec4 normal) {
+  return uvec2(floatBitsToUint(depth.x), packSnorm2x16(normal.xy));
+}
+
+GPixel g_load_tap(uint p) {
+  uvec2 w = gpack[p];
+  GPixel g;
+  g.z = uintBitsToFloat(w.x);
+#if defined(SVGF_SPLAT) && defined(BINDING_g_depth)
+  g.dz = g_depth[p].yz;
+#else
+  g.dz = vec2(0.0f);
+#endif
+  g.z_prev = 0.0f;
+  g.n = oct_decode(unpackSnorm2x16(w.y));
+  g.albedo = vec3(1.0f);
+  g.id = 0u;
+  return g;
 }
 #endif
 #ifdef BINDING_prev_g_depth

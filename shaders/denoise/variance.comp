@@ -78,7 +78,7 @@ void main() {
       int qx = int(x) + dx;
       if (qy < 0 || qy >= int(H) || qx < 0 || qx >= int(W)) continue;
       uint qp = uint(qy) * W + uint(qx);
-      GPixel q = g_load(qp);
+      GPixel q = g_load_tap(qp);
       vec2 mq = moments_at(qp);
       float Yq = CLASSIC != 0u ? luminance(unpack_half4(acc_colour[qp]).rgb) : 0.0f;
       [[unroll]] for (int k = 0; k < int(K); ++k) {
