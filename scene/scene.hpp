@@ -387,7 +387,8 @@ void reflect(V& v, RenderSettings& r) {
   v.field("equiangular_probability", r.equiangular_probability, Range{0, 1},
           "mixture weight of equi-angular distance sampling (scenes with point or spot lights)");
   v.field("rr_threshold", r.rr_threshold, Range{0, 1},
-          "Russian roulette on ratio-tracked transmittance below this value (0: off)");
+          "Russian roulette on ratio-tracked transmittance below this value (a shadow ray's on T times its "
+          "contribution relative to the path's first vertex; 0: off)");
   v.field("estimator", r.estimator, Choices{"default", "volpath"},
           "default: haze's estimator; volpath: pbrt-v4's VolPathIntegrator (delta tracking, NEE at every "
           "collision), the efficiency benchmark's baseline");
