@@ -12,7 +12,7 @@ export HAZE_SHADER_CACHE=${HAZE_SHADER_CACHE:-$PWD/build/shader-cache}
 export MESA_SHADER_CACHE_DIR=${MESA_SHADER_CACHE_DIR:-$PWD/build/mesa-cache}
 status=0
 for seed in "${seeds[@]}"; do
-  HAZE_FUZZ_CASES=$cases HAZE_FUZZ_SEED=$seed build/fuzz_test --gtest_brief=1 | grep -E "^fuzz seed|Failure|case [0-9]+" || true
+  HAZE_FUZZ_CASES=$cases HAZE_FUZZ_SEED=$seed build/haze_tests --gtest_filter='Fuzz.*' --gtest_brief=1 | grep -E "^fuzz seed|Failure|case [0-9]+" || true
   [ "${PIPESTATUS[0]}" -eq 0 ] || status=1
 done
 exit $status
