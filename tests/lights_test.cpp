@@ -631,15 +631,15 @@ TEST(EnvironmentMap, BackgroundShowsTheTurnedMap) {
   EXPECT_EQ(context().validation_messages(), 0u);
 }
 
-// A white furnace with a non-constant map: a Lambertian plane of albedo 1 facing up reflects
-// (1 / pi) times the map's cosine-weighted integral over the upper hemisphere, the same at every point and
-// for every view:  L = (1 / pi) sum over pixels above the horizon of L_ij (2 pi / W) (sin^2 theta_j+1 -
-// sin^2 theta_j) / 2. NEE alone carries the map (max_depth 1).
-// Injected defects caught (measured): the 2 pi^2 of the density replaced by 2 pi in Li (pooled z -355);
-// Li multiplied by the light count instead of divided by the choice's pmf, with the point light present
-// (pooled z -24).
-TEST(EnvironmentMap, WhitePlaneFurnaceReflectsTheCosineWeightedMap) {
-  TempDir dir("haze_lights");
+// The white-plane furnace under a sky map with a sun: a Lambertian plane of albedo 1 facing up, seen from
+// above, and its radiance, (1 / pi) times the map's cosine-weighted integral over the upper hemisphere:
+//   L = (1 / pi) sum over pixels above the horizon of L_ij (2 pi / W) (sin^2 theta_j+1 - sin^2 theta_j) / 2.
+struct WhitePlaneFurnace {
+  json scene;
+  glm::dvec3 radiance;
+};
+
+WhitePlaneFurnace white_plane_furnace(const TempDir& dir) {
   const uint32_t W = 64, H = 32;
   lights::SkyParams sp;
   sp.width = W;
@@ -655,12 +655,24 @@ TEST(EnvironmentMap, WhitePlaneFurnaceReflectsTheCosineWeightedMap) {
     for (uint32_t i = 0; i < W; ++i)
       E += glm::dvec3(m.texels[size_t(j) * W + i]) * (2 * M_PI / W) * (b * b - a * a) / 2.0;
   }
-  const glm::dvec3 ref = E / M_PI;
   json j = map_scene(file, 25);
   j["camera"] = {{"position", {0, 1, 0}}, {"target", {0.2, 0, -0.3}}, {"up", {0, 0, -1}}, {"fov_y", 50}};
   j["surfaces"] = {{{"mesh", {{"kind", "plane"}, {"size", {40, 40}}}},
                     {"albedo", {1, 1, 1}},
                     {"transform", {{"rotate", {-90, 0, 0}}}}}};
+  return {j, E / M_PI};
+}
+
+// A white furnace with a non-constant map (white_plane_furnace): the same radiance at every point and for
+// every view. NEE alone carries the map (max_depth 1).
+// Injected defects caught (measured): the 2 pi^2 of the density replaced by 2 pi in Li (pooled z -355);
+// Li multiplied by the light count instead of divided by the choice's pmf, with the point light present
+// (pooled z -24).
+TEST(EnvironmentMap, WhitePlaneFurnaceReflectsTheCosineWeightedMap) {
+  TempDir dir("haze_lights");
+  const WhitePlaneFurnace f = white_plane_furnace(dir);
+  const glm::dvec3 ref = f.radiance;
+  json j = f.scene;
   // A point light under the plane: it lights nothing the camera sees, but takes about half of the choice.
   j["lights"]["points"] = {{{"position", {0, -1, 0}}, {"intensity", 1000}}};
   scene::Scene s = make_scene(j);
@@ -844,28 +856,10 @@ TEST(EnvironmentMap, ExtremeMapsStayFinite) {
 // +166.
 TEST(LightMis, WhitePlaneFurnaceWithEscapingWalks) {
   TempDir dir("haze_lights");
-  const uint32_t W = 64, H = 32;
-  lights::SkyParams sp;
-  sp.width = W;
-  sp.height = H;
-  sp.sun_size = 12;
-  sp.sun_radiance = 30;
-  const lights::EnvironmentMap m = lights::make_sky(sp);
-  const std::string file = (dir.path() / "sky.exr").string();
-  lights::write_environment_map(file, m);
-  glm::dvec3 E(0);
-  for (uint32_t j = 0; j < H / 2; ++j) {
-    const double a = std::sin(M_PI * j / H), b = std::sin(M_PI * (j + 1) / H);
-    for (uint32_t i = 0; i < W; ++i)
-      E += glm::dvec3(m.texels[size_t(j) * W + i]) * (2 * M_PI / W) * (b * b - a * a) / 2.0;
-  }
-  const glm::dvec3 ref = E / M_PI;
+  const WhitePlaneFurnace f = white_plane_furnace(dir);
+  const glm::dvec3 ref = f.radiance;
   for (const char* estimator : {"default", "volpath"}) {
-    json j = map_scene(file, 25);
-    j["camera"] = {{"position", {0, 1, 0}}, {"target", {0.2, 0, -0.3}}, {"up", {0, 0, -1}}, {"fov_y", 50}};
-    j["surfaces"] = {{{"mesh", {{"kind", "plane"}, {"size", {40, 40}}}},
-                      {"albedo", {1, 1, 1}},
-                      {"transform", {{"rotate", {-90, 0, 0}}}}}};
+    json j = f.scene;
     j["render"]["max_depth"] = 2;
     j["render"]["estimator"] = estimator;
     scene::Scene s = make_scene(j);
