@@ -174,8 +174,11 @@ BvhFigures bench_bvh(gpu::Context& ctx) {
   std::vector<glsl::GpuRay> rays(n);
   uint32_t state = glsl::rng_init(5u, 0u, 0u);
   for (auto& r : rays) {
-    glm::vec3 o = glm::vec3(glsl::rng_next(state), glsl::rng_next(state), glsl::rng_next(state)) * 4.f - 2.f;
-    glm::vec3 d = glsl::sample_uniform_sphere(glm::vec2(glsl::rng_next(state), glsl::rng_next(state)));
+    // One number at a time: C++ leaves the order of a call's arguments to the compiler.
+    const float ox = glsl::rng_next(state), oy = glsl::rng_next(state), oz = glsl::rng_next(state);
+    const float u1 = glsl::rng_next(state), u2 = glsl::rng_next(state);
+    glm::vec3 o = glm::vec3(ox, oy, oz) * 4.f - 2.f;
+    glm::vec3 d = glsl::sample_uniform_sphere(glm::vec2(u1, u2));
     r.origin_tmin = glm::vec4(o, 0);
     r.direction_tmax = glm::vec4(d, 1e30f);
   }

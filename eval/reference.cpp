@@ -102,7 +102,9 @@ ReferenceOptions reference_options_from_json(const json& j, const std::string& o
   ReferenceOptions o;
   if (!j.is_object())
     throw render::Error(fmt::format("{}: expected an object {{\"target\": 0.01, ...}}", origin));
-  for (const auto& [k, v] : j.items()) {
+  for (const auto& item : j.items()) {
+    const std::string& k = item.key();  // named, not bound: clang 14 lambdas cannot capture bindings
+    const json& v = item.value();
     const std::string key = fmt::format("{}.{}", origin, k);
     auto number = [&](double lo, double hi) {
       if (!v.is_number() || !(v.get<double>() >= lo && v.get<double>() <= hi))

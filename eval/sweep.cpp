@@ -573,7 +573,8 @@ int run_sweep(gpu::Context& ctx, const SweepSpec& spec, const std::string& out, 
       json reference_notes = json::array();
       auto t0 = clock::now();
       scene::Scene s = scene::load(spec.scene, run.overrides);
-      auto [first, last] = scene::frame_range(s);
+      const auto [first, last_frame] = scene::frame_range(s);
+      const int last = last_frame;  // captured below: clang 14 lambdas cannot capture structured bindings
       std::string ref_dir;
       if (spec.reference) {
         ref_dir =

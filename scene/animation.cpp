@@ -279,7 +279,9 @@ Scene evaluate(const Scene& s, int frame, const ReadContext& base) {
   };
   std::vector<Check> checks;
   for (const Compiled& c : tracks) {
-    for (const auto& [path, run] : c.target.checks) {
+    for (const auto& check : c.target.checks) {
+      const std::string& path = check.first;  // named, not bound: clang 14 lambdas cannot capture bindings
+      const auto& run = check.second;
       bool seen = std::any_of(checks.begin(), checks.end(), [&](const Check& k) { return k.path == path; });
       if (!seen) checks.push_back({path, &run});
     }

@@ -7,7 +7,7 @@ if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
 
 PACKAGES=(
   # toolchain
-  build-essential cmake ninja-build pkg-config clang-format
+  build-essential clang cmake ninja-build pkg-config clang-format
   # volumes
   libopenvdb-dev libnanovdb-dev libtbb-dev libboost-iostreams-dev liblog4cplus-dev libblosc-dev zlib1g-dev
   # surfaces

@@ -57,7 +57,7 @@ json tinted_box(double sigma, double albedo, glm::dvec3 c, double g = 0) {
 
 void put_medium(json& j, bool vdb, const json& haze, const json& box) {
   if (vdb)
-    j["media"] = {box};
+    j["media"] = json::array({box});
   else
     j["haze"] = haze;
 }
@@ -205,7 +205,7 @@ TEST_P(ChromaticP, ZeroAndHugeChannelsStayFinite) {
 TEST(Chromatic, GreyScenesKeepTheGreyPermutation) {
   json j = slab_scene("default");
   j["haze"] = tinted_haze(1.0, 0.5, {1, 1, 1});
-  j["media"] = {tinted_box(1.0, 0.5, {1, 1, 1})};
+  j["media"] = json::array({tinted_box(1.0, 0.5, {1, 1, 1})});
   j["lights"] = {{"environment", {{"color", {1, 1, 1}}}}};
   {
     render::Renderer r(context(), make_scene(j));
@@ -225,9 +225,9 @@ TEST(Chromatic, BadMultipliersAreRefused) {
   j["haze"]["sigma_t"] = 0;  // no medium: nothing to say
   make_scene(j);
   j.erase("haze");
-  j["media"] = {tinted_box(1.0, 0.5, {1, -1, 1})};
+  j["media"] = json::array({tinted_box(1.0, 0.5, {1, -1, 1})});
   expect_error([&] { make_scene(j); }, {"media[0].sigma_t_color"});
-  j["media"] = {tinted_box(1.0, 0.5, {0, 0, 0})};
+  j["media"] = json::array({tinted_box(1.0, 0.5, {0, 0, 0})});
   expect_error([&] { make_scene(j); }, {"media[0].sigma_t_color", "density_scale"});
 }
 

@@ -59,9 +59,7 @@ struct Frame {
 class Rig {
  public:
   Rig(int W, int H, const SvgfParams& p)
-      : W_(W),
-        H_(H),
-        colour_(context(), "test colour", "test", size_t(W) * H * 12, "3 x f32"),
+      : colour_(context(), "test colour", "test", size_t(W) * H * 12, "3 x f32"),
         g_(context(), "test g-buffer", "test", size_t(W) * H, render::kGBufferLayers),
         prev_(context(), "test previous g-buffer", "test", size_t(W) * H, render::kPrevGBufferLayers),
         svgf_(context(), "surface", p, W, H, true) {}
@@ -82,7 +80,6 @@ class Rig {
   const denoise::Svgf& svgf() const { return svgf_; }
 
  private:
-  int W_, H_;
   gpu::Buffer colour_;
   gpu::PixelLayers g_, prev_;
   denoise::Svgf svgf_;
@@ -331,7 +328,7 @@ TEST(Svgf, PercentilesMatchASortOnTheCpu) {
   std::exponential_distribution<float> expo(1.f);
   std::vector<glm::vec3> in(size_t(W) * H);
   for (size_t p = 0; p < in.size(); ++p) {
-    in[p] = glm::vec3(expo(rng), expo(rng), expo(rng));
+    in[p] = glm::vec3{expo(rng), expo(rng), expo(rng)};
     if (p % 7 == 0) in[p] = glm::round(in[p] * 2.f) * 0.5f;  // ties
   }
   in[3] = glm::vec3(NAN, 1.f, 1.f);

@@ -180,7 +180,7 @@ TEST(Estimator, LargeFrameKeepsEveryBufferWithinTheDeviceRange) {
 
 TEST_P(EstimatorP, RatioTrackingThroughVdbBox) {
   json j = with_estimator(slab_camera(), GetParam());
-  j["media"] = {box_medium(1.5, 0.5, 0)};
+  j["media"] = json::array({box_medium(1.5, 0.5, 0)});
   scene::Scene s = make_scene(j);
   render::Renderer r(context(), s);
   render_checked(r, 256, "vdb box");
@@ -244,9 +244,9 @@ void check_sunlit_slab(const SlabCase& c) {
   const double sigma = c.sigma, albedo = 0.7, g = 0.4, E = 2.0;
   json j = with_estimator(slab_camera(), c.estimator);
   if (c.bounded)
-    j["media"] = {bounded_box_medium(sigma, albedo, g)};
+    j["media"] = json::array({bounded_box_medium(sigma, albedo, g)});
   else if (c.hetero)
-    j["media"] = {box_medium(sigma, albedo, g)};
+    j["media"] = json::array({box_medium(sigma, albedo, g)});
   else
     j["haze"] = haze_slab(sigma, albedo, g);
   j["lights"] = {{"sun", {{"direction", {0, 1, 0}}, {"irradiance", E}, {"angular_diameter", 0}}}};
@@ -292,7 +292,7 @@ TEST_P(EstimatorP, SunlitVdbSlabSingleScattering) {
 // tracking, closed form) and in single scattering of the sun.
 TEST_P(EstimatorP, BoundedVdbBoxIsTheHomogeneousSlab) {
   json j = with_estimator(slab_camera(), GetParam());
-  j["media"] = {bounded_box_medium(1.5, 0.5, 0)};
+  j["media"] = json::array({bounded_box_medium(1.5, 0.5, 0)});
   scene::Scene s = make_scene(j);
   render::Renderer r(context(), s);
   render_checked(r, 256, "bounded box");
@@ -603,7 +603,7 @@ TEST_P(EstimatorP, AbsorbingEmittingVdbSlab) {
   json j = with_estimator(slab_camera(), GetParam());
   json m = box_medium(sigma, 0.0, 0.0);
   m["emission"] = {{"mode", "scale"}, {"scale", e_scale}};
-  j["media"] = {m};
+  j["media"] = json::array({m});
   j["render"]["max_depth"] = 0;
   scene::Scene s = make_scene(j);
   render::Renderer r(context(), s);
@@ -743,11 +743,10 @@ TEST(Estimator, VolpathAndDefaultAgreeOnAFullScene) {
 TEST(ReferenceSums, FoldedSumsConvergeAt2To24Samples) {
   const int64_t n = int64_t(1) << 24;
   const float x = 0.3f, x2 = x * x;
-  float plain = 0, plain2 = 0, batch = 0, batch2 = 0;
+  float plain = 0, batch = 0, batch2 = 0;
   double folded = 0, folded2 = 0;
   for (int64_t i = 1; i <= n; ++i) {
     plain += x;
-    plain2 += x2;
     batch += x;
     batch2 += x2;
     if (i % render::Renderer::kFoldSamples == 0) {

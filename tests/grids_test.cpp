@@ -89,7 +89,7 @@ TEST(Grids, BeyondTheStorageBufferRangeThroughDeviceAddresses) {
   std::vector<glm::vec4> points;
   for (const glsl::GpuMedium& g : dm.media)
     for (int i = 0; i < 32768; ++i) {
-      glm::vec3 t(u(rng), u(rng), u(rng));
+      glm::vec3 t{u(rng), u(rng), u(rng)};  // braces: evaluated left to right
       points.emplace_back(glm::mix(glm::vec3(g.world_min), glm::vec3(g.world_max), t), 1.f);
     }
   std::vector<float> gpu = probe(m, points);

@@ -87,7 +87,7 @@ lights::EnvironmentMap test_map(uint32_t w, uint32_t h, uint32_t seed = 5) {
   lights::EnvironmentMap m = lights::make_sky(p);
   std::mt19937 rng(seed);
   std::uniform_real_distribution<float> f(0.5f, 1.5f);
-  for (auto& t : m.texels) t *= glm::vec3(f(rng), f(rng), f(rng));
+  for (auto& t : m.texels) t *= glm::vec3{f(rng), f(rng), f(rng)};
   for (uint32_t i = 0; i < w; ++i) m.texels[size_t(h - 2) * w + i] = glm::vec3(0);
   for (uint32_t k = 0; k < 5; ++k) m.texels[(size_t(k) * 7919) % (size_t(w) * h)] = glm::vec3(0);
   return m;

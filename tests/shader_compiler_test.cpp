@@ -257,7 +257,10 @@ TEST(ShaderCompilerCache, KeyChangesWithDefinesAndIncludedFiles) {
     auto words = c.compile(q);
     return std::pair{c.key(q), c.stats()};
   };
-  const auto [k0, s0] = compile_fresh(base, p);
+  const auto first = compile_fresh(base, p);
+  const std::string k0 =
+      first.first;  // named, not bound: clang 14 lambdas cannot capture structured bindings
+  const auto& s0 = first.second;
   EXPECT_EQ(k0.size(), 32u);
   EXPECT_EQ(k0.find_first_not_of("0123456789abcdef"), std::string::npos) << k0;
   EXPECT_EQ(s0.compiled, 1u);

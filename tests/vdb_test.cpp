@@ -183,7 +183,7 @@ TEST_F(VdbTest, CloudRoundTrip) {
   std::uniform_int_distribution<int> u(-20, 20);
   int nonzero = 0;
   for (int i = 0; i < 300; ++i) {
-    glm::ivec3 c = glm::ivec3(glm::round(s.center / s.voxel_size)) + glm::ivec3(u(rng), u(rng), u(rng));
+    glm::ivec3 c = glm::ivec3(glm::round(s.center / s.voxel_size)) + glm::ivec3{u(rng), u(rng), u(rng)};
     double want = procedural_value(s, glm::dvec3(c) * s.voxel_size);
     EXPECT_NEAR(smp.voxel(c), want, 1e-5 * s.density) << c.x << " " << c.y << " " << c.z;
     EXPECT_NEAR(smp.trilinear(glm::dvec3(c)), want, 1e-5 * s.density);
@@ -499,7 +499,7 @@ void check_conservative(const std::vector<Medium>& media, const MajorantGrid& ma
   int failures = 0, inside = 0;
   double ratio = 0;
   for (int i = 0; i < n_points; ++i) {
-    glm::dvec3 p = lo + ext * glm::dvec3(u(rng), u(rng), u(rng));
+    glm::dvec3 p = lo + ext * glm::dvec3{u(rng), u(rng), u(rng)};
     if (i % 4 == 0) {  // snap one coordinate onto a cell face, where neighbouring cells meet
       int a = i / 4 % 3;
       p[a] = lo[a] + cell[a] * std::round((p[a] - lo[a]) / cell[a]);

@@ -199,7 +199,6 @@ class Viewer {
   clock::time_point last_present_{};
   std::optional<std::pair<uint32_t, size_t>> unpresented_;  // submitted, not yet presented: image, record
   std::optional<glm::dvec2> last_cursor_;
-  double scroll_ = 0;
   std::string screenshot_now_, save_image_now_;
   int frames_while_compiling_ = 0, compiles_ = 0;
 };
