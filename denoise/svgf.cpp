@@ -28,8 +28,7 @@ glsl::SvgfGpuParams gpu_params(const SvgfParams& p, uint32_t W, uint32_t H, bool
   g.variance = glm::vec4(p.variance_normal >= 180.f ? -2.f : cos_deg(p.variance_normal), p.variance_depth,
                          p.spatial_bias, p.spatial_falloff);
   g.filter_phi = glm::vec4(p.phi_luminance, p.phi_depth, std::min(cos_deg(p.phi_normal), 0.9999f), 1e-4f);
-  // z: the reciprocal of the normal term's smoothstep width, 1 / (1 - cos phi_n), so that taps multiply.
-  g.filter_fade = glm::vec4(p.zbias_normal, p.zbias_depth, 1.f / (1.f - g.filter_phi.z), 0);
+  g.filter_fade = glm::vec4(p.zbias_normal, p.zbias_depth, 0, 0);
   g.taa = glm::vec4(p.taa_blend, p.taa_clamp == "variance" ? 1.f : 0.f, p.taa_gamma, 0);
   g.variance_scale =
       glm::vec4(p.filter_sigma == "estimate" ? 1.f : 0.f, std::max(1.f - p.accumulate, 1e-3f), 0, 0);
@@ -308,18 +307,12 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
     scope(fmt::format("filter{}", i).c_str());
     gpu::Bindings b = common;
     b.set("in_colour", *src).set("out_colour", temp_[dst]);
-    // One invocation per strip of SVGF_FILTER_STRIP pixels spaced s along the iteration's axis (filter.comp):
-    // per residue mod s, ceil(extent / (s K)) strips.
-    const uint32_t gap = 1u << i, s = params_.kernel == "subsampled" ? 2 * gap : gap;
-    const bool x_axis = params_.kernel != "subsampled" || (i & 1u) == 0;
-    const uint32_t along = gpu::div_up(x_axis ? width_ : height_, s * glsl::SVGF_FILTER_STRIP) * s;
-    const uint32_t fx = x_axis ? gpu::div_up(along, 8) : gx, fy = x_axis ? gy : gpu::div_up(along, 8);
     if (weight_sum_pass_.valid()) {
       b.set("weight_sum", weight_sum_);
-      weight_sum_pass_.dispatch(cmd, b, &i, fx, fy);
+      weight_sum_pass_.dispatch(cmd, b, &i, gx, gy);
       gpu::compute_barrier(cmd);
     }
-    filter_pass_.dispatch(cmd, b, &i, fx, fy);
+    filter_pass_.dispatch(cmd, b, &i, gx, gy);
     end();
     if (i == 0) {
       gpu::copy_buffer(cmd, temp_[0], history_);
@@ -334,7 +327,7 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
   {
     gpu::Bindings b = common;
     b.set("filtered", *src).set("prev_output", taa_).set("outp", taa_out);
-    taa_pass_.dispatch(cmd, b, &taa_push, gx, gpu::div_up(height_, 8 * glsl::SVGF_TAA_ROWS));
+    taa_pass_.dispatch(cmd, b, &taa_push, gx, gy);
   }
   end();
   gpu::copy_buffer(cmd, taa_out, taa_);

@@ -144,67 +144,44 @@ vec3 demod_albedo(GPixel g) {
 }
 
 // Edge-stopping depth term of Schied et al. 2017: the depth difference against what the centre's depth
-// gradient predicts over the offset, scaled by phi. depth_rcp is the term's scale, which a centre computes
-// once for the offsets +-o (a division per tap is what the filter's time follows on lavapipe) and
-// depth_exponent the term's exponent: 0 between two sky pixels, SVGF_NO_WEIGHT (exp() gives 0) between sky
-// and surface.
-const float SVGF_NO_WEIGHT = 1e30f;
-
-float depth_rcp(GPixel c, vec2 offset, float phi) {
-  return 1.0f / (phi * abs(dot(c.dz, offset)) + 1e-3f * c.z);
-}
-
-float depth_exponent(GPixel c, GPixel q, float rcp) {
-  if (c.z <= 0.0f || q.z <= 0.0f) return c.z <= 0.0f && q.z <= 0.0f ? 0.0f : SVGF_NO_WEIGHT;
-  return abs(c.z - q.z) * rcp;
-}
-
+// gradient predicts over the offset, scaled by phi.
 float depth_weight(GPixel c, GPixel q, vec2 offset, float phi) {
-  return exp(-depth_exponent(c, q, depth_rcp(c, offset, phi)));
+  if (c.z <= 0.0f || q.z <= 0.0f) return c.z <= 0.0f && q.z <= 0.0f ? 1.0f : 0.0f;
+  float predicted = abs(dot(c.dz, offset));
+  return exp(-abs(c.z - q.z) / (phi * predicted + 1e-3f * c.z));
 }
 
-// A filter tap's centre as the edge-stopping terms see it (filter.comp): its geometry, luminance, the
-// reciprocal of its luminance term's scale 1 / (phi_l sigma + eps) and how far its depth and normal terms
-// have faded.
+// A filter tap's centre as the edge-stopping terms see it (filter.comp): its geometry, luminance, the scale
+// of its luminance term (phi_l sigma + eps) and how far its depth and normal terms have faded.
 struct FilterCentre {
   GPixel g;
-  float Y, rcp_luminance, fade_n, fade_z;
+  float Y, luminance_scale, fade_n, fade_z;
 };
 
 FilterCentre filter_centre(GPixel g, float Y, float sigma) {
   FilterCentre c;
   c.g = g;
   c.Y = Y;
-  c.rcp_luminance = 1.0f / (P.filter_phi.x * sigma + P.filter_phi.w);
+  c.luminance_scale = P.filter_phi.x * sigma + P.filter_phi.w;
   c.fade_n = P.filter_fade.x > 0.0f ? smoothstep(0.0f, P.filter_fade.x, g.z) : 0.0f;
   c.fade_z = P.filter_fade.y > 0.0f ? smoothstep(0.0f, P.filter_fade.y, g.z) : 0.0f;
   return c;
 }
 
-// The filter's depth scale for centre c and the offsets +-o (pixels).
-float filter_depth_rcp(FilterCentre c, vec2 o) {
-  return depth_rcp(c.g, o, P.filter_phi.y);
-}
-
-// Adaptive mode's edge-stopping weight of tap q (luminance Yq) for centre c, without the kernel's own weight:
-// exp(-(|dY| / (phi_l sigma + eps))^2) times the depth and normal terms, each faded towards 1 with the
-// centre's distance. rcp_z: filter_depth_rcp(c, o) for the tap's offset o. Unfaded depth terms (zbias_depth
-// 0, the defaults) share one exp with the luminance term. The normal term is smoothstep(cos phi_n, 1, n.n')
-// with the reciprocal of its width from the host (filter_fade.z).
-float filter_weight(FilterCentre c, GPixel q, float Yq, float rcp_z) {
-  float x = abs(Yq - c.Y) * c.rcp_luminance;
-  float t = clamp((dot(c.g.n, q.n) - P.filter_phi.z) * P.filter_fade.z, 0.0f, 1.0f);
-  float wn = mix(t * t * (3.0f - 2.0f * t), 1.0f, c.fade_n);
-  float e_z = depth_exponent(c.g, q, rcp_z);
-  if (c.fade_z > 0.0f) return exp(-x * x) * mix(exp(-e_z), 1.0f, c.fade_z) * wn;
-  return exp(-(x * x + e_z)) * wn;
+// Adaptive mode's edge-stopping weight of tap q (luminance Yq, at offset o in pixels) for centre c, without
+// the kernel's own weight: exp(-(|dY| / (phi_l sigma + eps))^2) times the depth and normal terms, each faded
+// towards 1 with the centre's distance.
+float filter_weight(FilterCentre c, GPixel q, float Yq, vec2 o) {
+  float x = abs(Yq - c.Y) / c.luminance_scale;
+  float wz = mix(depth_weight(c.g, q, o, P.filter_phi.y), 1.0f, c.fade_z);
+  float wn = mix(smoothstep(P.filter_phi.z, 1.0f, dot(c.g.n, q.n)), 1.0f, c.fade_n);
+  return exp(-x * x) * wz * wn;
 }
 
 // The same weight made symmetric, the geometric mean of the weights each way: what the energy-conserving
 // (splat) normalization needs, w(c, q) = w(q, c).
 float filter_weight_symmetric(FilterCentre c, FilterCentre q, vec2 o) {
-  return sqrt(filter_weight(c, q.g, q.Y, filter_depth_rcp(c, o)) *
-              filter_weight(q, c.g, c.Y, filter_depth_rcp(q, o)));
+  return sqrt(filter_weight(c, q.g, q.Y, o) * filter_weight(q, c.g, c.Y, -o));
 }
 
 // History test on the signal itself (adaptive mode, reproject.w = k > 0): the history's mean luminance Y_h

@@ -14,7 +14,7 @@ struct SvgfGpuParams {
                      // w: k of the history test (0: off)
   vec4 variance;     // x: cos of the normal reject, y: depth accept (phi), z: spatial bias b, w: falloff f
   vec4 filter_phi;   // x: phi_l, y: phi_z, z: cos of phi_n (adaptive) or exponent (classic), w: epsilon
-  vec4 filter_fade;  // x: zbias normals, y: zbias depth, z: 1 / (1 - filter_phi.z) (adaptive)
+  vec4 filter_fade;  // x: zbias normals, y: zbias depth
   vec4 taa;        // x: blend (weight of the history), y: clamp (0 min/max, 1 mean +- gamma sigma), z: gamma
   uvec4 geometry;  // own geometry (SVGF_OWN_GEOMETRY): x, y: the input depth's float stride and offset
   vec4 variance_scale;  // x: 1 for filter_sigma "estimate" (else 0), y: the smallest alpha, max(1 - a, 1e-3)
@@ -25,10 +25,6 @@ struct SvgfGpuParams {
 const uint SVGF_MOMENTS_STRIDE = 3u;
 // Pixels (a column) per invocation of the variance pass.
 const uint SVGF_VARIANCE_ROWS = 8u;
-// Pixels (a strip along the kernel's axis) per invocation of the filter.
-const uint SVGF_FILTER_STRIP = 4u;
-// Pixels (a column) per invocation of the TAA pass.
-const uint SVGF_TAA_ROWS = 8u;
 // Largest value stored in half floats (colour and sigma saturate there).
 const float SVGF_HALF_MAX = 65000.0;
 

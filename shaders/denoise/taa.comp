@@ -4,7 +4,6 @@
 // current 3x3 neighbourhood (its min/max box, or mean +- gamma sigma) and blended:
 // out = mix(current, clamped history, blend).
 #extension GL_GOOGLE_include_directive : require
-#extension GL_EXT_control_flow_attributes : require
 layout(local_size_x = 8, local_size_y = 8) in;
 
 #include "denoise/svgf_layout.glsl"
@@ -48,74 +47,55 @@ vec3 emitted(uint p) {
 #endif
 }
 
-// One invocation blends a column of SVGF_TAA_ROWS pixels: the remodulated current signal of the 3 columns of
-// their 3x3 boxes is computed once per pixel (3 (K + 2) instead of 9 K), each box then taken in its own
-// order.
-const int K = int(SVGF_TAA_ROWS);
+vec3 current(uint p) {
+  vec3 albedo = remodulation(p);
+  return unpack_half4(filtered[p]).rgb * albedo + emitted(p);
+}
 
 void main() {
+  uvec2 pix = gl_GlobalInvocationID.xy;
   uint W = P.size.x, H = P.size.y;
-  int x = int(gl_GlobalInvocationID.x), y0 = int(gl_GlobalInvocationID.y) * K;
-  if (x >= int(W) || y0 >= int(H)) return;
-  // Rows y0 - 1 .. y0 + K, columns x - 1 .. x + 1; outside the image: not part of any box.
-  vec3 cur[K + 2][3];
-  bool valid[K + 2][3];
-  vec4 f[K];
-  vec3 albedo[K];
-  [[unroll]] for (int r = 0; r < K + 2; ++r) [[unroll]] for (int i = 0; i < 3; ++i) {
-    ivec2 qi = ivec2(x + i - 1, y0 + r - 1);
-    valid[r][i] = all(greaterThanEqual(qi, ivec2(0))) && all(lessThan(qi, ivec2(W, H)));
-    cur[r][i] = vec3(0.0f);
-    if (!valid[r][i]) continue;
-    uint q = uint(qi.y) * W + uint(qi.x);
-    vec4 fq = unpack_half4(filtered[q]);
-    vec3 aq = remodulation(q);
-    cur[r][i] = fq.rgb * aq + emitted(q);
-    if (i == 1 && r >= 1 && r <= K) {
-      f[r - 1] = fq;
-      albedo[r - 1] = aq;
+  if (pix.x >= W || pix.y >= H) return;
+  uint p = pix.y * W + pix.x;
+  vec4 f = unpack_half4(filtered[p]);
+  vec3 albedo = remodulation(p);
+  vec3 cur = f.rgb * albedo + emitted(p);
+  float sigma = f.w * luminance(albedo);
+  vec3 result = cur;
+  uint mb = p * P.layout_in.z + P.layout_in.w;
+  vec2 q = vec2(pix) + 0.5f + vec2(motion[mb], motion[mb + 1u]);
+  if (pc.has_history != 0u && svgf_finite(vec4(q, 0.0f, 0.0f)) && all(greaterThanEqual(q, vec2(0.0f))) &&
+      all(lessThan(q, vec2(W, H)))) {
+    // Bilinear history with clamped taps.
+    vec2 g = q - 0.5f;
+    ivec2 i0 = ivec2(floor(g));
+    vec2 fr = g - vec2(i0);
+    vec3 hist = vec3(0.0f);
+    for (int t = 0; t < 4; ++t) {
+      ivec2 qi = clamp(i0 + ivec2(t & 1, t >> 1), ivec2(0), ivec2(W - 1u, H - 1u));
+      float w = ((t & 1) != 0 ? fr.x : 1.0f - fr.x) * ((t >> 1) != 0 ? fr.y : 1.0f - fr.y);
+      hist += w * unpack_half4(prev_output[uint(qi.y) * W + uint(qi.x)]).rgb;
     }
-  }
-  [[unroll]] for (int k = 0; k < K; ++k) {
-    if (y0 + k >= int(H)) continue;
-    uvec2 pix = uvec2(x, y0 + k);
-    uint p = pix.y * W + pix.x;
-    vec3 c = cur[k + 1][1];
-    float sigma = f[k].w * luminance(albedo[k]);
-    vec3 result = c;
-    uint mb = p * P.layout_in.z + P.layout_in.w;
-    vec2 q = vec2(pix) + 0.5f + vec2(motion[mb], motion[mb + 1u]);
-    if (pc.has_history != 0u && svgf_finite(vec4(q, 0.0f, 0.0f)) && all(greaterThanEqual(q, vec2(0.0f))) &&
-        all(lessThan(q, vec2(W, H)))) {
-      // Bilinear history with clamped taps.
-      vec2 g = q - 0.5f;
-      ivec2 i0 = ivec2(floor(g));
-      vec2 fr = g - vec2(i0);
-      vec3 hist = vec3(0.0f);
-      for (int t = 0; t < 4; ++t) {
-        ivec2 qi = clamp(i0 + ivec2(t & 1, t >> 1), ivec2(0), ivec2(W - 1u, H - 1u));
-        float w = ((t & 1) != 0 ? fr.x : 1.0f - fr.x) * ((t >> 1) != 0 ? fr.y : 1.0f - fr.y);
-        hist += w * unpack_half4(prev_output[uint(qi.y) * W + uint(qi.x)]).rgb;
-      }
-      vec3 lo = c, hi = c, mean = vec3(0.0f), m2 = vec3(0.0f);
-      float n = 0.0f;
-      [[unroll]] for (int dy = -1; dy <= 1; ++dy) [[unroll]] for (int dx = -1; dx <= 1; ++dx) {
-        if (!valid[k + 1 + dy][1 + dx]) continue;
-        vec3 cq = cur[k + 1 + dy][1 + dx];
-        lo = min(lo, cq);
-        hi = max(hi, cq);
-        mean += cq;
-        m2 += cq * cq;
+    vec3 lo = cur, hi = cur, mean = vec3(0.0f), m2 = vec3(0.0f);
+    float n = 0.0f;
+    for (int dy = -1; dy <= 1; ++dy)
+      for (int dx = -1; dx <= 1; ++dx) {
+        ivec2 qi = ivec2(pix) + ivec2(dx, dy);
+        if (any(lessThan(qi, ivec2(0))) || any(greaterThanEqual(qi, ivec2(W, H)))) continue;
+        vec3 c = current(uint(qi.y) * W + uint(qi.x));
+        lo = min(lo, c);
+        hi = max(hi, c);
+        mean += c;
+        m2 += c * c;
         n += 1.0f;
       }
-      if (P.taa.y > 0.5f) {
-        mean /= n;
-        vec3 s = sqrt(max(m2 / n - mean * mean, vec3(0.0f)));
-        lo = mean - P.taa.z * s;
-        hi = mean + P.taa.z * s;
-      }
-      result = mix(c, clamp(hist, lo, hi), P.taa.x);
+    if (P.taa.y > 0.5f) {
+      mean /= n;
+      vec3 s = sqrt(max(m2 / n - mean * mean, vec3(0.0f)));
+      lo = mean - P.taa.z * s;
+      hi = mean + P.taa.z * s;
     }
-    outp[p] = pack_half4(vec4(result, sigma));
+    result = mix(cur, clamp(hist, lo, hi), P.taa.x);
   }
+  outp[p] = pack_half4(vec4(result, sigma));
 }
