@@ -469,8 +469,9 @@ void Renderer::record_samples(VkCommandBuffer cmd, gpu::Timer* timer, int n) {
     if (i > 0 && !guide_.active()) gpu::compute_barrier(cmd);
     if (timer) timer->begin(cmd, "trace");
     trace_.dispatch(cmd, b, &sample_index, gx, gy);
-    // The next sample reads the states this one wrote.
+    // The next sample reads the states this one wrote (histogram: folded after the dispatch).
     if (guide_.active()) gpu::compute_barrier(cmd);
+    guide_.after_sample(cmd, scene_buf_);
     if (timer) timer->end(cmd);
     ++samples_;
   }

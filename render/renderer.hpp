@@ -184,8 +184,8 @@ class Renderer {
   // What loading the scene changed or dropped (clamped g, dropped triangles, ...), one line each.
   std::vector<std::string> notes() const;
   const surfaces::SceneGeometry& geometry() const { return surfaces_.geometry(); }
-  // The distance-guiding states (K vec4 {W, N, m1, m2} per grid vertex, shaders/guiding/guide.glsl); empty
-  // without guiding.
+  // The distance-guiding states (K vec4 {W, N, m1, m2} per grid vertex, or the histogram model's floats per
+  // vertex, shaders/guiding/guide.glsl); empty without guiding.
   std::vector<glm::vec4> guide_states() const { return guide_.download(); }
   // The GPU times of every submission (finish() first: they arrive a frame late).
   const std::map<std::string, PassStats>& pass_stats() const;

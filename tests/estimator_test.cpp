@@ -210,9 +210,15 @@ double slab_single_scatter(glm::dvec3 d, double sigma, double albedo, double g, 
       0, s_max, 4000);
 }
 
-// Distance guiding with probability P (guiding off for P < 0): every P must converge to the same image.
-json guided(json j, double P) {
-  if (P >= 0) j["guiding"] = {{"enabled", true}, {"probability", P}, {"spacing", 4}};
+// Distance guiding with probability P everywhere (guiding off for P < 0) and the guide `model`: every P must
+// converge to the same image.
+json guided(json j, double P, const std::string& model = "histogram") {
+  if (P >= 0)
+    j["guiding"] = {{"enabled", true},
+                    {"probability", P},
+                    {"spacing", 4},
+                    {"model", model},
+                    {"choose_probability", false}};
   return j;
 }
 
@@ -238,6 +244,7 @@ struct SlabCase {
   bool bounded = false;  // a VDB box clipped to the slab, against the homogeneous slab's reference
   double sigma = 0.8;
   bool delta_tracked = false;  // the camera rays are delta-tracked: no sample may be guided
+  std::string guide_model = "histogram";
 };
 
 void check_sunlit_slab(const SlabCase& c) {
@@ -252,9 +259,10 @@ void check_sunlit_slab(const SlabCase& c) {
   j["lights"] = {{"sun", {{"direction", {0, 1, 0}}, {"irradiance", E}, {"angular_diameter", 0}}}};
   j["render"]["equiangular_probability"] = c.p_equiangular;
   j["render"]["volume_samples"] = 2;
-  scene::Scene s = make_scene(guided(j, c.guide_p));
+  scene::Scene s = make_scene(guided(j, c.guide_p, c.guide_model));
   render::Renderer r(context(), s);
   EXPECT_EQ(r.has_feature("GUIDING"), c.guide_p >= 0);
+  EXPECT_EQ(r.has_feature("GUIDE_HIST"), c.guide_p >= 0 && c.guide_model == "histogram");
   render::Image img = render_checked(r, 256, "sunlit slab");
   if (c.guide_p >= 0) expect_guided_share(img.counters, c.delta_tracked ? 0.0 : c.guide_p);
   std::function<double(double)> rho, F;
@@ -307,7 +315,8 @@ TEST_P(EstimatorP, BoundedVdbBoxIsTheHomogeneousSlab) {
 
 // Airlight: an isotropic point light in unbounded homogeneous fog, single scattering. The reference is the
 // equi-angular change of variables of the 1D integral (smooth, Simpson).
-void check_airlight(const std::string& estimator, double p_equiangular, double guide_p = -1) {
+void check_airlight(const std::string& estimator, double p_equiangular, double guide_p = -1,
+                    const std::string& guide_model = "histogram") {
   const double sigma = 0.3, albedo = 0.8, g = 0.2, I = 5.0;
   const glm::dvec3 c(0.3, 0.2, 2.0), o(0, 0, 0);
   json j = {{"camera", {{"position", {0, 0, 0}}, {"target", {0, 0, 1}}, {"fov_y", 60}}},
@@ -319,7 +328,7 @@ void check_airlight(const std::string& estimator, double p_equiangular, double g
               {"pixel_jitter", false},
               {"max_depth", 1},
               {"equiangular_probability", p_equiangular}}}};
-  scene::Scene s = make_scene(guided(with_estimator(j, estimator), guide_p));
+  scene::Scene s = make_scene(guided(with_estimator(j, estimator), guide_p, guide_model));
   render::Renderer r(context(), s);
   render::Image img = render_checked(r, 256, "airlight");
   if (guide_p >= 0) expect_guided_share(img.counters, guide_p);
@@ -343,28 +352,49 @@ void check_airlight(const std::string& estimator, double p_equiangular, double g
   expect_unbiased(bias_test(estimate(r, ACC_L, ACC_L2, 3), ref), "airlight, " + estimator);
 }
 
-// Guided distance sampling (the guide learns while it samples, from the first sample on).
-class GuidedSlab : public ::testing::TestWithParam<double> {};
+// Guided distance sampling (the guide learns while it samples, from the first sample on), with the
+// histogram guide at P 0, 0.5 and 0.9 and the Gaussian states at 0.5.
+// Injected into the histogram guide at P 0.5, homogeneous slab: its pdf not renormalised to the ray's part
+// [0, t_end] (the total over [0, R] instead): pooled z 4.55 against the critical 4.31 (fails); the mixture
+// without the 1 - P of q_rest: pooled z -403.
+struct GuidedSlabCase {
+  std::string model;
+  double P;
+};
+void PrintTo(const GuidedSlabCase& c, std::ostream* os) {
+  *os << c.model << " P " << c.P;
+}
+class GuidedSlab : public ::testing::TestWithParam<GuidedSlabCase> {};
+SlabCase guided_slab(bool hetero, double sigma = 0.8) {
+  SlabCase c{"default", hetero, 0.5, GuidedSlab::GetParam().P, false, sigma};
+  c.guide_model = GuidedSlab::GetParam().model;
+  return c;
+}
 TEST_P(GuidedSlab, HomogeneousSunlitSlabIsUnbiased) {
-  check_sunlit_slab({"default", false, 0.5, GetParam()});
+  check_sunlit_slab(guided_slab(false));
 }
 // Thin enough (majorant optical depth below 0.1 on every ray) that the camera rays are not delta-tracked,
 // which would leave them unguided.
 TEST_P(GuidedSlab, VdbSunlitSlabIsUnbiased) {
-  check_sunlit_slab({"default", true, 0.5, GetParam(), false, 0.04});
+  check_sunlit_slab(guided_slab(true, 0.04));
 }
 TEST_P(GuidedSlab, AirlightWithEquiAngularIsUnbiased) {
-  check_airlight("default", 0.5, GetParam());
+  check_airlight("default", 0.5, GetParam().P, GetParam().model);
 }
 // Camera rays through a heterogeneous majorant optical depth of 0.1 or more are delta-tracked and not
 // guided, whatever P (docs/guiding.md), and stay unbiased. Injected: a P_guide that ignores delta_cam gave
 // guided shares of 0.50 and 0.90 at P 0.5 and 0.9 (fails).
 TEST_P(GuidedSlab, DenseVdbRaysAreDeltaTrackedNotGuided) {
-  SlabCase c{"default", true, 0.5, GetParam()};
+  SlabCase c = guided_slab(true);
   c.delta_tracked = true;
   check_sunlit_slab(c);
 }
-INSTANTIATE_TEST_SUITE_P(P, GuidedSlab, ::testing::Values(0.0, 0.5, 0.9));
+INSTANTIATE_TEST_SUITE_P(P, GuidedSlab,
+                         ::testing::Values(GuidedSlabCase{"histogram", 0.0}, GuidedSlabCase{"histogram", 0.5},
+                                           GuidedSlabCase{"histogram", 0.9}, GuidedSlabCase{"gaussian", 0.5}),
+                         [](const ::testing::TestParamInfo<GuidedSlabCase>& i) {
+                           return i.param.model + "_P" + std::to_string(int(std::lround(i.param.P * 100)));
+                         });
 
 // A heterogeneous cloud with multiple scattering, a sun and a point light has no closed form: the guided
 // estimator must agree with the unguided one, each at a high sample count (two-sample test per pixel and
@@ -377,16 +407,16 @@ TEST_P(GuidedSlab, VdbCloudMatchesUnguided) {
               {"points", {{{"position", {-0.5, 0.9, 0.4}}, {"intensity", 2}}}}}},
             {"render", {{"width", 10}, {"height", 10}, {"pixel_jitter", false}, {"max_depth", 3}}}};
   auto run = [&](double P) {
-    scene::Scene s = make_scene(guided(j, P));
+    scene::Scene s = make_scene(guided(j, P, GetParam().model));
     render::Renderer r(context(), s);
     render::Image img = render_checked(r, 768, "cloud");
     if (P >= 0) expect_guided_share(img.counters, P);
     return estimate(r, glsl::ACC_VOL, glsl::ACC_VOL2, 3);
   };
-  static const Estimate u = run(-1);  // shared by the three P
-  Estimate g = run(GetParam());
+  static const Estimate u = run(-1);  // shared by the cases
+  Estimate g = run(GetParam().P);
   expect_unbiased(two_sample_test(g, u), "guided against unguided");
-  if (GetParam() == 0) {
+  if (GetParam().P == 0) {
     // P = 0 draws no guide candidates and learns nothing: the unguided samples, in another permutation
     // (GUIDING), whose compiled float arithmetic may differ in rounding.
     double worst = 0;

@@ -39,8 +39,9 @@ struct GpuScene {
   vec4 prev_cam_forward;
   uvec4 counts2;  // x: surface instances
   // Distance guiding (guiding/params.hpp; read only by the GUIDING variant). Widths are relative to t_s.
-  vec4 guide;        // x: P, y: min width, z: prior width, w: prior count
-  uvec4 guide_grid;  // x, y: vertices across and down, z: K states per vertex, w: C candidates
+  vec4 guide;        // x: P, y: min width, z: prior width, w: prior count (histogram: y choose P 0/1)
+  uvec4 guide_grid;  // x, y: vertices across and down, z: K states per vertex (histogram: floats per
+                     // vertex), w: C candidates
   vec4 guide_learn;  // x: vertex spacing in pixels, y: learn (0/1), z: max count N, w: min alpha
   // Chromatic media (read by the CHROMATIC variant only): rgb the haze's sigma_t multipliers, w the largest
   // multiplier of any medium and channel (the majorants' factor).

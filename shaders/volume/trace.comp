@@ -16,6 +16,9 @@
 // tracker (and its single density-lookup call site) is inlined once.
 #extension GL_GOOGLE_include_directive : require
 #extension GL_EXT_control_flow_attributes : require
+#if HAZE_GUIDE_ATOMIC_FLOAT
+#extension GL_EXT_shader_atomic_float : require
+#endif
 
 layout(local_size_x = 8, local_size_y = 8) in;
 
@@ -58,10 +61,22 @@ void counter_add(uint c, uint v) {
 #endif
 #if HAZE_GUIDING
 #include "guiding/guide.glsl"
+#if HAZE_GUIDE_HIST
+// A histogram per grid vertex (guide.glsl layout), read only here; this dispatch's learning goes to
+// guide_learn, which the fold pass adds after it.
+layout(std430, binding = BINDING_guide_hist) readonly buffer GuideHist {
+  float guide_hist[];
+};
+layout(std430, binding = BINDING_guide_learn) buffer GuideLearn {
+  float guide_learn[];
+};
+const uint GUIDE_BINS = HAZE_GUIDE_BINS;
+#else
 // K states per grid vertex, read and written by every sample (a Markov chain of states, not a histogram).
 layout(std430, binding = BINDING_guide_states) buffer GuideStates {
   vec4 guide_states[];
 };
+#endif
 #endif
 
 layout(push_constant) uniform Push {
@@ -86,14 +101,78 @@ const float RATIO_RR = 0.05f, RATIO_RR_SURVIVE = 0.25f;
 #endif
 
 #if HAZE_GUIDING
-// A random state slot at a grid vertex next to grid position g (stochastic bilinear choice of the vertex).
-uint guide_slot(vec2 g, inout uint rng) {
+// A grid vertex next to grid position g (stochastic bilinear choice).
+uint guide_vertex(vec2 g, inout uint rng) {
   vec2 f = g - floor(g);
   ivec2 v = ivec2(floor(g)) + ivec2(rng_next(rng) < f.x ? 1 : 0, rng_next(rng) < f.y ? 1 : 0);
   v = clamp(v, ivec2(0), ivec2(scene.guide_grid.xy) - 1);
-  uint K = scene.guide_grid.z;
-  return (uint(v.y) * scene.guide_grid.x + uint(v.x)) * K + min(uint(rng_next(rng) * float(K)), K - 1u);
+  return uint(v.y) * scene.guide_grid.x + uint(v.x);
 }
+#if HAZE_GUIDE_HIST
+// Running sum of bins 0..b of the histogram at float offset h (b < 0: 0).
+float guide_cdf(uint h, int b) {
+  return b < 0 ? 0.0f : guide_hist[h + GUIDE_BINS + uint(b)];
+}
+// The histogram at h on one ray: its range R and its part [0, t_end] on the ray, with the mass there.
+struct GuideRay {
+  uint h;
+  float R, t_end, total;
+};
+GuideRay guide_ray(uint h, float t_g) {
+  GuideRay g;
+  g.h = h;
+  g.R = guide_hist[h + 2u * GUIDE_BINS + 3u];
+  g.t_end = min(t_g, g.R);
+  g.total = 0.0f;
+  uint b = guide_hist_bin(g.t_end, g.R, GUIDE_BINS);
+  if (b < GUIDE_BINS) {
+    float c0 = guide_cdf(h, int(b) - 1);
+    g.total =
+        c0 + (guide_cdf(h, int(b)) - c0) * clamp(g.t_end * (float(GUIDE_BINS) / g.R) - float(b), 0.0f, 1.0f);
+  }
+  return g;
+}
+// q_hist(t) on the ray; a bin's mass is a difference of running sums, as the sampler sees it.
+float guide_hist_pdf_at(GuideRay g, float t) {
+  uint b = guide_hist_bin(t, g.R, GUIDE_BINS);
+  if (b >= GUIDE_BINS || t > g.t_end) return 0.0f;
+  return guide_hist_pdf(guide_cdf(g.h, int(b)) - guide_cdf(g.h, int(b) - 1), g.total, g.R, GUIDE_BINS);
+}
+// A distance from the histogram on the ray (total > 0): the first bin whose running sum exceeds u total,
+// then uniform within it (u reused); the last bin is cut at t_end.
+float guide_hist_sample(GuideRay g, float u) {
+  uint h = g.h;
+  float x = u * g.total;
+  int lo = 0, hi = int(guide_hist_bin(g.t_end, g.R, GUIDE_BINS));
+  while (lo < hi) {
+    int mid = (lo + hi) / 2;
+    if (guide_cdf(h, mid) > x)
+      hi = mid;
+    else
+      lo = mid + 1;
+  }
+  float c0 = guide_cdf(h, lo - 1), c1 = guide_cdf(h, lo);
+  float f = c1 > c0 ? clamp((x - c0) / (c1 - c0), 0.0f, 1.0f) : 0.5f;
+  float t = min(g.R * ((float(lo) + f) / float(GUIDE_BINS)), g.t_end);
+  // Rounding must not carry t into a neighbouring bin, whose pdf would then be used.
+  if (guide_hist_bin(t, g.R, GUIDE_BINS) != uint(lo))
+    t = min(g.R * ((float(lo) + 0.5f) / float(GUIDE_BINS)), g.t_end);
+  return t;
+}
+void guide_learn_add(uint i, float x) {
+#if HAZE_GUIDE_ATOMIC_FLOAT
+  atomicAdd(guide_learn[i], x);
+#else
+  guide_learn[i] += x;  // concurrent additions may be lost: fewer samples, still a valid histogram
+#endif
+}
+#else
+// A random state slot at a grid vertex next to grid position g.
+uint guide_slot(vec2 g, inout uint rng) {
+  uint K = scene.guide_grid.z;
+  return guide_vertex(g, rng) * K + min(uint(rng_next(rng) * float(K)), K - 1u);
+}
+#endif
 #endif
 
 // x², capped at SQUARE_MAX (an overflow to Inf included); `clamped` tells whether any component was.
@@ -144,6 +223,7 @@ void main() {
   vec3 cam_d = camera_direction(scene.cam_right.xyz, scene.cam_up.xyz, scene.cam_forward.xyz,
                                 vec2(pix) + jitter, vec2(W, H));
   float t_s = media_exit(cam_o, cam_d);
+  const float t_media = t_s;  // where the ray leaves the last medium
   bool cam_hit = false;
 #if HAZE_SURFACES
   BvhHit cam_h = bvh_closest_hit(cam_o, cam_d, 0.0f, T_INF);
@@ -194,13 +274,24 @@ void main() {
   }
 #endif
 #if HAZE_GUIDING
-  // The guide spreads its Gaussians over [0, t_g]: the ray up to t_s, but no further than a majorant optical
-  // depth of GUIDE_MAX_TAU (light from beyond is negligible; q_base still covers it).
-  float t_g = tau_total > GUIDE_MAX_TAU ? maj_walk(cam_o, cam_d, 0.0f, t_s, GUIDE_MAX_TAU).t : t_s;
+  // The guide spreads over [0, t_g]: the ray up to t_s and out of the media (a surface behind them must not
+  // stretch a histogram's bins), but no further than a majorant optical depth of GUIDE_MAX_TAU (light from
+  // beyond is negligible; q_base still covers it).
+  float t_g =
+      tau_total > GUIDE_MAX_TAU ? maj_walk(cam_o, cam_d, 0.0f, t_s, GUIDE_MAX_TAU).t : min(t_s, t_media);
+#if HAZE_GUIDE_HIST
+  // The vertices choose their P (guide.y) or take the scene's: here P_guide only says the guide is on.
+  float P_guide =
+      t_g > 0.0f && t_g < 1e18f && !delta_cam && (scene.guide.y > 0.5f || scene.guide.x > 0.0f) ? 1.0f : 0.0f;
+  // The current sample's vertex's histogram on this ray (total 0: empty).
+  GuideRay guide_r = GuideRay(0u, 0.0f, 0.0f, 0.0f);
+  float q_rest = 0.0f, q_guide = 0.0f;  // q(t_j) without the guide, and the histogram's pdf at t_j
+#else
   float P_guide = t_g > 0.0f && t_g < 1e18f && !delta_cam ? scene.guide.x : 0.0f;
-  vec2 guide_pos = (vec2(pix) + jitter) / scene.guide_learn.x;
   vec4 guide_chosen = vec4(0.0f);  // the state the current sample learns into
   float guide_mean_w = 0.0f;       // mean candidate weight, the bar for writing a state back
+#endif
+  vec2 guide_pos = (vec2(pix) + jitter) / scene.guide_learn.x;
 #endif
   // The first sample's delta track also estimates T(0, t_s) (1 when it reaches t_s): the surface term
   // needs no pass of its own.
@@ -304,7 +395,26 @@ void main() {
       float u_pick = rng_next(rng);
       float u_t = rng_next(rng);
       float P = 0.0f;
-#if HAZE_GUIDING
+#if HAZE_GUIDE_HIST
+      if (P_guide > 0.0f) {
+        // The nearest vertex: a histogram learns from rays that see their sheets at about the same distances
+        // (a stochastic bilinear choice doubles the footprint; measured no better, docs/guiding.md).
+        uvec2 gv = uvec2(clamp(ivec2(round(guide_pos)), ivec2(0), ivec2(scene.guide_grid.xy) - 1));
+        guide_r = guide_ray((gv.y * scene.guide_grid.x + gv.x) * scene.guide_grid.z, t_g);
+        if (guide_r.total > 0.0f) {
+          P = guide_hist[guide_r.h + 2u * GUIDE_BINS + 2u];
+          vp_g += guide_hist[guide_r.h + 2u * GUIDE_BINS + 1u];
+          vp_gn += 1.0f;
+        }
+        if (u_pick < P) {
+          t = guide_hist_sample(guide_r, u_t);
+          u_pick = 2.0f;  // neither base nor equi-angular below
+          n_guided += 1u;
+        } else {
+          u_pick = (u_pick - P) / (1.0f - P);
+        }
+      }
+#elif HAZE_GUIDING
       GuideMixture gm = guide_mixture_empty();
       uint slots[GUIDE_MAX_CANDIDATES];
       if (P_guide > 0.0f) {
@@ -362,7 +472,11 @@ void main() {
         for (uint k = 0u; k < K; ++k)
           q += p_ea / float(K) * light_segment_pdf(light_segment(cam_o, cam_d, k, t_s, cone_clipped), t);
 #endif
-#if HAZE_GUIDING
+#if HAZE_GUIDE_HIST
+        q_rest = q;
+        q_guide = guide_r.total > 0.0f ? guide_hist_pdf_at(guide_r, t) : 0.0f;
+        q = (1.0f - P) * q + P * q_guide;
+#elif HAZE_GUIDING
         q = (1.0f - P) * q + P * guide_mixture_pdf(gm, t);
 #endif
         // A sample the mixture cannot produce again contributes nothing (nor does a light's empty segment).
@@ -692,7 +806,24 @@ void main() {
       if (!(Y >= 0.0f && Y < 1e30f)) Y = 0.0f;
       vp_wt += Y * t_j;
       vp_w += Y;
-#if HAZE_GUIDING
+#if HAZE_GUIDE_HIST
+      if (scene.guide_learn.y > 0.5f && P_guide > 0.0f) {
+        // The sample's own estimate f(t)/q(t) of the ray integral (L_vol holds it divided by N): its mean in
+        // a bin is the integral over the bin. Its square times q / q_Pi estimates the second moment at P_i.
+        float L = Y * float(N);
+        uint l = (guide_r.h / scene.guide_grid.z) * guide_learn_stride(GUIDE_BINS);
+        uint b = guide_hist_bin(t_j, guide_r.R, GUIDE_BINS);
+        if (b < GUIDE_BINS && L > 0.0f) guide_learn_add(l + b, L);
+        guide_learn_add(l + GUIDE_BINS, 1.0f);
+        // Until the fold fixes R: the longest segment (a racy max; a lost maximum only shortens R).
+        uint l_max = l + GUIDE_BINS + 1u + GUIDE_P_CHOICES;
+        if (guide_r.R == 0.0f && t_g > guide_learn[l_max]) guide_learn[l_max] = t_g;
+        if (guide_r.total > 0.0f && L > 0.0f && q_j < T_INF)
+          for (uint i = 0u; i < GUIDE_P_CHOICES; ++i)
+            guide_learn_add(l + GUIDE_BINS + 1u + i,
+                            min(L * L * guide_moment_factor(q_j, q_rest, q_guide, guide_p_choice(i)), 1e30f));
+      }
+#elif HAZE_GUIDING
       if (scene.guide_learn.y > 0.5f && P_guide > 0.0f) {
         // The sample's own estimate f(t)/q(t) of the ray integral (L_vol holds it divided by N).
         float L = Y * float(N);
