@@ -230,7 +230,7 @@ openvdb::FloatGrid::Ptr build_procedural(const ProceduralSpec& s) {
 }
 
 // The range of a tree's active values (voxels and tiles), serially: tools::minMax instantiates TBB's
-// reductions for each numeric grid type, a sixth of this file's compile time, for a command that reads one
+// reductions for each numeric grid type (a ninth of this file's object code) for a command that reads one
 // file.
 template <typename TreeT>
 std::pair<double, double> active_range(const TreeT& tree) {
