@@ -77,6 +77,10 @@ struct ChromaticCase {
   bool vdb;
   std::string name() const { return estimator + (vdb ? " vdb" : " haze"); }
 };
+// What gtest prints for a case (ctest's names): its name, not its bytes.
+void PrintTo(const ChromaticCase& c, std::ostream* os) {
+  *os << c.name();
+}
 class ChromaticP : public ::testing::TestWithParam<ChromaticCase> {};
 INSTANTIATE_TEST_SUITE_P(Estimators, ChromaticP,
                          ::testing::Values(ChromaticCase{"default", false}, ChromaticCase{"default", true},

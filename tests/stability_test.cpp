@@ -73,6 +73,10 @@ struct ExtremeCase {
   const char* name;
   json patch;  // merged into the base scene (RFC 7386)
 };
+// What gtest prints for a case (ctest's names): its name, not its bytes.
+void PrintTo(const ExtremeCase& c, std::ostream* os) {
+  *os << c.name;
+}
 
 class Extremes : public ::testing::TestWithParam<ExtremeCase> {};
 
