@@ -554,6 +554,20 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
   return rows;
 }
 
+// A command-line option holding a JSON object (empty: {}); `example` goes into the error.
+json json_object_option(const std::string& text, const char* flag, const char* example) {
+  if (text.empty()) return json::object();
+  json j;
+  try {
+    j = json::parse(text);
+  } catch (const std::exception& e) {
+    throw std::runtime_error(
+        fmt::format("{}: not JSON ({}); expected an object such as {}", flag, e.what(), example));
+  }
+  if (!j.is_object()) throw std::runtime_error(fmt::format("{}: expected a JSON object", flag));
+  return j;
+}
+
 }  // namespace
 
 const std::vector<std::string>& part_names() {
@@ -598,30 +612,10 @@ int run(const Options& o, const gpu::ContextOptions& co) {
   auto [shw, shh] = parse_size(o.shafts_size, "--shafts-size");
   if (o.shafts_frames < 1)
     throw std::runtime_error(fmt::format("--shafts-frames {}: must be >= 1", o.shafts_frames));
-  json set_patch;
-  if (!o.shafts_set.empty()) {
-    try {
-      set_patch = json::parse(o.shafts_set);
-    } catch (const std::exception& e) {
-      throw std::runtime_error(
-          fmt::format("--shafts-set: not JSON ({}); expected an object such as "
-                      "'{{\"denoise\": {{\"volume\": {{\"iterations\": 3}}}}}}'",
-                      e.what()));
-    }
-    if (!set_patch.is_object()) throw std::runtime_error("--shafts-set: expected a JSON object");
-  }
-  json efficiency_set = json::object();
-  if (!o.efficiency_set.empty()) {
-    try {
-      efficiency_set = json::parse(o.efficiency_set);
-    } catch (const std::exception& e) {
-      throw std::runtime_error(
-          fmt::format("--efficiency-set: not JSON ({}); expected an object such as '{{\"render\": "
-                      "{{\"rr_threshold\": 0.2}}}}'",
-                      e.what()));
-    }
-    if (!efficiency_set.is_object()) throw std::runtime_error("--efficiency-set: expected a JSON object");
-  }
+  const json set_patch =
+      json_object_option(o.shafts_set, "--shafts-set", R"('{"denoise": {"volume": {"iterations": 3}}}')");
+  const json efficiency_set =
+      json_object_option(o.efficiency_set, "--efficiency-set", R"('{"render": {"rr_threshold": 0.2}}')");
   if (o.shafts_reference_spp < 1)
     throw std::runtime_error(fmt::format("--shafts-reference-spp {}: must be >= 1", o.shafts_reference_spp));
   if (o.spp < 1) throw std::runtime_error(fmt::format("--spp {}: must be >= 1", o.spp));

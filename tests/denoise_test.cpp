@@ -619,11 +619,15 @@ TEST(Svgf, VirtualPointGeometryIsTheMedianDepthAndItsGradient) {
 // worst pixel within 6e-4 (measured below). Catches: one diagonal tap of the subsampled kernel a row off
 // (ivec2(-1, 2) for ivec2(-1, 1) in filter.comp: worst 5.0, mean 0.15) and the TAA's 3x3 box without its
 // right column (mirrored in x: worst 0.41, mean 0.013).
+// The pixel that (x, y) mirrors, in x or in y.
+size_t denoise_mirror_index(int x, int y, int W, int H, bool x_axis) {
+  return x_axis ? size_t(y) * W + (W - 1 - x) : size_t(H - 1 - y) * W + x;
+}
+
 std::vector<glm::vec3> denoise_mirror(const std::vector<glm::vec3>& v, int W, int H, bool x_axis) {
   std::vector<glm::vec3> out(v.size());
   for (int y = 0; y < H; ++y)
-    for (int x = 0; x < W; ++x)
-      out[size_t(y) * W + x] = v[x_axis ? size_t(y) * W + (W - 1 - x) : size_t(H - 1 - y) * W + x];
+    for (int x = 0; x < W; ++x) out[size_t(y) * W + x] = v[denoise_mirror_index(x, y, W, H, x_axis)];
   return out;
 }
 
@@ -632,7 +636,7 @@ Frame denoise_mirror(const Frame& f, bool x_axis) {
   m.reference = denoise_mirror(f.reference, f.W, f.H, x_axis);
   for (int y = 0; y < f.H; ++y)
     for (int x = 0; x < f.W; ++x) {
-      GPix g = f.g[x_axis ? size_t(y) * f.W + (f.W - 1 - x) : size_t(f.H - 1 - y) * f.W + x];
+      GPix g = f.g[denoise_mirror_index(x, y, f.W, f.H, x_axis)];
       g.normal[x_axis ? 0 : 1] *= -1.f;
       m.g[size_t(y) * f.W + x] = g;
     }
