@@ -30,6 +30,9 @@ struct SvgfParams {
   float depth_tolerance = 0.0264f;  // tau, relative
   float border_history = 2.f;       // history cap when motion leaves the screen
   float history_test = 0.f;         // k of the history's test against the neighbours' mean (0: off)
+  // What the next frame reprojects: the accumulated colour, or the first filter iteration's output (SVGF's
+  // choice, which compounds the filter's blur and energy loss from frame to frame; classic mode always).
+  std::string feedback = "accumulated";  // accumulated | filtered
   // Variance estimate.
   float variance_normal = 30.f;  // degrees
   float variance_depth = 40.f;
@@ -40,6 +43,8 @@ struct SvgfParams {
   std::string normalization = "gather";  // gather (SVGF) | splat (energy-conserving)
   // What sigma steers the luminance term: one frame's sample (SVGF) or the accumulated estimate's.
   std::string filter_sigma = "sample";  // sample (SVGF) | estimate
+  // Whose sigma scales the luminance term: the centre's (SVGF) or the pair's, the same both ways.
+  std::string luminance_sigma = "pair";  // pair | centre (SVGF)
   float phi_luminance = 3.f;
   float phi_depth = 40.f;
   float phi_normal = 30.f;  // degrees
@@ -56,6 +61,7 @@ inline SvgfParams volume_defaults() {
   p.geometry = "virtual_points";
   p.filter_sigma = "estimate";
   p.normalization = "splat";
+  p.luminance_sigma = "centre";
   p.accumulate = 0.8f;
   p.adapt_ipr = 3.f;
   p.adapt_low = 0.056f;
@@ -116,6 +122,11 @@ void reflect(V& v, SvgfParams& p) {
       "adaptive mode: a history whose luminance differs from this frame's 3x3 neighbours' mean by more than "
       "10% plus k standard errors is cut, to this frame's sample past 2k (0: off; the volume instance's "
       "reprojection with one virtual point per pixel is wrong where a ray crosses several sheets)");
+  v.field(
+      "feedback", p.feedback, Choices{"accumulated", "filtered"},
+      "adaptive mode: the next frame's colour history is this frame's temporal accumulation, or the first "
+      "filter iteration's output as in SVGF (classic mode always), which feeds the filter's blur and "
+      "energy loss back into the history");
   v.field("border_history", p.border_history, Range{1, 1024}, "history cap where motion leaves the screen");
   v.field("variance_normal", p.variance_normal, Range{0, 180}, "variance estimate: normal reject, degrees");
   v.field("variance_depth", p.variance_depth, Range::at_least(0), "variance estimate: depth scale");
@@ -133,6 +144,13 @@ void reflect(V& v, SvgfParams& p) {
       "adaptive mode: the luminance term's sigma is that of one frame's sample (SVGF) or of the accumulated "
       "estimate (the sample variance over the frames the colour averages), which stops at real edges once "
       "the history is long");
+  v.field(
+      "luminance_sigma", p.luminance_sigma, Choices{"centre", "pair"},
+      "adaptive mode: the luminance term compares |Y_q - Y_p| with phi_l sigma_p, the centre's (SVGF), or "
+      "with "
+      "phi_l sqrt((sigma_p^2 + sigma_q^2) / 2), the spread of the difference, the same both ways (with the "
+      "centre's, dark centres of skewed noise refuse bright neighbours that take them in: gather loses "
+      "energy)");
   v.field("phi_luminance", p.phi_luminance, Range::at_least(0), "luminance edge-stopping scale");
   v.field("phi_depth", p.phi_depth, Range::at_least(0), "depth edge-stopping scale");
   v.field("phi_normal", p.phi_normal, Range{0, 180}, "normal edge-stopping angle, degrees");

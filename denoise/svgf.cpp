@@ -59,7 +59,7 @@ Svgf::Svgf(gpu::Context& ctx, std::string name, const SvgfParams& params, uint32
     temp_[i] = gpu::Buffer(ctx, fmt::format("svgf.{} ping-pong {}", name_, i), temps, pixels * 8,
                            "RGBA16F (rgb, sigma | history length); moments as 2 x f32 after accumulation");
   history_ = gpu::Buffer(ctx, fmt::format("svgf.{} history colour", name_), prev, pixels * 8,
-                         "RGBA16F (filtered rgb, sigma)");
+                         "RGBA16F (rgb, sigma)");
   moments_ = gpu::Buffer(ctx, fmt::format("svgf.{} history moments", name_), prev,
                          pixels * glsl::SVGF_MOMENTS_STRIDE * 4, "3 x f32 (m1, m2, history length)");
   taa_ = gpu::Buffer(ctx, fmt::format("svgf.{} taa output", name_), prev, pixels * 8, "RGBA16F (rgb, sigma)");
@@ -94,6 +94,7 @@ Svgf::~Svgf() = default;
 void Svgf::create_kernels() {
   const uint32_t classic = params_.mode == "classic" ? 1 : 0;
   const uint32_t subsampled = params_.kernel == "subsampled" ? 1 : 0;
+  const uint32_t pair = params_.mode != "classic" && params_.luminance_sigma == "pair" ? 1 : 0;
   const uint64_t pixels = uint64_t(width_) * height_;
   const uint64_t blocks = uint64_t(gpu::div_up(width_, kBlock)) * gpu::div_up(height_, kBlock);
   auto decl = [&](const char* pass) {
@@ -156,9 +157,9 @@ void Svgf::create_kernels() {
   if (splat()) {
     f.define("SVGF_SPLAT").buffer("weight_sum", pixels * 4);
     gpu::KernelDecl w = f;
-    weight_sum_pass_ = make(std::move(w.specialize({classic, subsampled, 1})));
+    weight_sum_pass_ = make(std::move(w.specialize({classic, subsampled, 1, pair})));
   }
-  filter_pass_ = make(std::move(f.specialize({classic, subsampled, 0})));
+  filter_pass_ = make(std::move(f.specialize({classic, subsampled, 0, pair})));
   taa_pass_ = make(taa_decl());
 }
 
@@ -190,7 +191,8 @@ void Svgf::set_emission(bool emission) {
 void Svgf::set_params(const SvgfParams& params) {
   bool rebuild = !accumulate_pass_.valid() || params.mode != params_.mode ||
                  params.kernel != params_.kernel || params.geometry != params_.geometry ||
-                 params.normalization != params_.normalization;
+                 params.normalization != params_.normalization ||
+                 params.luminance_sigma != params_.luminance_sigma;
   if (params.geometry != params_.geometry) has_history_ = false;  // the history's tests change meaning
   params_ = params;
   make_geometry_buffers();
@@ -299,8 +301,9 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
     variance_pass_.dispatch(cmd, b, nullptr, gx, gpu::div_up(height_, 8 * glsl::SVGF_VARIANCE_ROWS));
   }
   end();
-  // history_ now holds (colour, sigma), the first iteration's input. That iteration's output becomes the
-  // next frame's history (copied back into history_ once it is no longer read).
+  // history_ now holds (colour, sigma), the first iteration's input and the next frame's history. With
+  // filtered feedback the first iteration's output replaces it (copied back once it is no longer read).
+  const bool feed_filtered = classic || params_.feedback == "filtered";
   const gpu::Buffer* src = &history_;
   int dst = 0;
   for (uint32_t i = 0; i < uint32_t(params_.iterations); ++i) {
@@ -314,7 +317,7 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
     }
     filter_pass_.dispatch(cmd, b, &i, gx, gy);
     end();
-    if (i == 0) {
+    if (i == 0 && feed_filtered) {
       gpu::copy_buffer(cmd, temp_[0], history_);
       gpu::compute_barrier(cmd);
     }

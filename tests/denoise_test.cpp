@@ -131,8 +131,10 @@ SvgfParams mode(const std::string& m) {
 TEST(Svgf, StaticSceneConvergesFarBelowTheInputError) {
   const int W = 64, H = 48;
   Frame f = two_planes(W, H);
-  for (const char* m : {"adaptive", "classic"}) {
-    Rig rig(W, H, mode(m));
+  for (const char* m : {"adaptive", "classic", "adaptive, filtered feedback"}) {
+    SvgfParams params = mode(std::string(m) == "classic" ? "classic" : "adaptive");
+    if (std::string(m) == "adaptive, filtered feedback") params.feedback = "filtered";
+    Rig rig(W, H, params);
     std::mt19937 rng(7);
     double input = 0, output = 0, mean_ratio = 0;
     double ref_mean = 0;
@@ -151,11 +153,14 @@ TEST(Svgf, StaticSceneConvergesFarBelowTheInputError) {
     std::cout << m << ": relMSE of the 1-spp input " << input << ", after 64 frames " << output << " ("
               << input / output << "x lower); mean luminance over frames 16-63 / the reference's "
               << mean_ratio << "\n";
-    EXPECT_LT(output, input / 200) << m;  // measured 650x (adaptive), 715x (classic)
-    // Measured -1.0% (adaptive) and -2.1% (classic: its gather normalization loses energy on skewed noise,
-    // ClassicEnergyLossIsTheGatherNormalization; classic mode is Schied et al.'s by definition and misses the
-    // 2% goal, docs/denoising.md).
-    EXPECT_LT(std::abs(mean_ratio - 1), std::string(m) == "adaptive" ? 0.02 : 0.03) << m;
+    // Measured 1512x (adaptive), 715x (classic) and 659x (adaptive with SVGF's feedback of the first filter
+    // iteration, which feeds the filter's blur back into the history). Catches: the filtered feedback as
+    // adaptive mode's default.
+    EXPECT_LT(output, input / (std::string(m) == "adaptive" ? 500 : 220)) << m;
+    // Measured -0.9% (adaptive), -0.5% (filtered feedback) and -2.1% (classic: its gather normalization loses
+    // energy on skewed noise, ClassicEnergyLossIsTheGatherNormalization; classic mode is Schied et al.'s by
+    // definition and misses the 2% goal, docs/denoising.md).
+    EXPECT_LT(std::abs(mean_ratio - 1), std::string(m) == "classic" ? 0.03 : 0.02) << m;
   }
   EXPECT_EQ(context().validation_messages(), 0u);
 }
@@ -310,7 +315,15 @@ TEST(Svgf, MotionLeavingTheScreenReusesTheBorder) {
     std::cout << m << ": history length at the entering edge " << edge << ", inside " << inner << "\n";
     const double expected_edge = std::string(m) == "adaptive" ? 2.0 : 1.0;
     EXPECT_NEAR(edge, expected_edge, 1e-3);
-    EXPECT_NEAR(inner, 8.0, 1e-3);
+    // Adaptive mode's history is the unfiltered accumulation (feedback "accumulated"): on this noise the
+    // percentile cap cuts a few inner pixels' histories (measured 7.80; exactly 8 with adapt_strength 0 or
+    // feedback "filtered").
+    if (std::string(m) == "adaptive") {
+      EXPECT_GT(inner, 7.4);
+      EXPECT_LE(inner, 8.0 + 1e-3);
+    } else {
+      EXPECT_NEAR(inner, 8.0, 1e-3);
+    }
   }
   EXPECT_EQ(context().validation_messages(), 0u);
 }
@@ -488,6 +501,11 @@ TEST(Svgf, ClassicEnergyLossIsTheGatherNormalization) {
   unfiltered.iterations = 0;
   splat.normalization = "splat";
   gather.normalization = "gather";
+  // Classic mode feeds the first iteration's output back, so the adaptive runs do too: with the accumulated
+  // feedback (the default) both normalizations lose about 0.9%, to the percentile cap cutting noisy
+  // histories (-0.2% with adapt_strength 0), which would hide the normalization's own share.
+  splat.feedback = gather.feedback = "filtered";
+  gather.luminance_sigma = splat.luminance_sigma = "centre";
   const double e_classic = mean_ratio(classic), e_unfiltered = mean_ratio(unfiltered);
   const double e_gather = mean_ratio(gather), e_splat = mean_ratio(splat);
   std::cout << "mean luminance error over frames 16-63: classic " << e_classic << ", classic without filter "

@@ -16,6 +16,7 @@ layout(local_size_x = 8, local_size_y = 8) in;
 layout(constant_id = 0) const uint CLASSIC = 0u;
 layout(constant_id = 1) const uint SUBSAMPLED = 0u;
 layout(constant_id = 2) const uint WEIGHT_SUM = 0u;
+layout(constant_id = 3) const uint PAIR_SIGMA = 0u;  // luminance_sigma "pair" (svgf_common.glsl)
 
 #include "denoise/svgf_layout.glsl"
 
@@ -82,10 +83,11 @@ void tap(ivec2 pix, ivec2 o, float k) {
         pow(max(0.0f, dot(centre.g.n, q.n)), P.filter_phi.z);
   } else {
 #ifdef SVGF_SPLAT
-    w = k * filter_weight_symmetric(centre, filter_centre(q, Yq, cq.w), offset);
+    w = k * filter_weight_symmetric(centre, filter_centre(q, Yq, cq.w), offset, PAIR_SIGMA != 0u);
     if (WEIGHT_SUM == 0u) w /= weight_sum[qp];  // the share of q's signal that reaches this pixel
 #else
-    w = k * filter_weight(centre, q, Yq, offset);
+    float scale = PAIR_SIGMA != 0u ? pair_luminance_scale(centre.sigma, cq.w) : centre.luminance_scale;
+    w = k * filter_weight(centre, q, Yq, scale, offset);
 #endif
   }
   sum_c += w * cq.rgb;

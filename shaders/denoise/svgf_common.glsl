@@ -151,28 +151,37 @@ float depth_weight(GPixel c, GPixel q, vec2 offset, float phi) {
   return exp(-abs(c.z - q.z) / (phi * predicted + 1e-3f * c.z));
 }
 
-// A filter tap's centre as the edge-stopping terms see it (filter.comp): its geometry, luminance, the scale
-// of its luminance term (phi_l sigma + eps) and how far its depth and normal terms have faded.
+// A filter tap's centre as the edge-stopping terms see it (filter.comp): its geometry, luminance and sigma,
+// the scale of its luminance term (phi_l sigma + eps) and how far its depth and normal terms have faded.
 struct FilterCentre {
   GPixel g;
-  float Y, luminance_scale, fade_n, fade_z;
+  float Y, sigma, luminance_scale, fade_n, fade_z;
 };
 
 FilterCentre filter_centre(GPixel g, float Y, float sigma) {
   FilterCentre c;
   c.g = g;
   c.Y = Y;
+  c.sigma = sigma;
   c.luminance_scale = P.filter_phi.x * sigma + P.filter_phi.w;
   c.fade_n = P.filter_fade.x > 0.0f ? smoothstep(0.0f, P.filter_fade.x, g.z) : 0.0f;
   c.fade_z = P.filter_fade.y > 0.0f ? smoothstep(0.0f, P.filter_fade.y, g.z) : 0.0f;
   return c;
 }
 
+// luminance_sigma "pair": the luminance term's scale from the spread of the difference Y_q - Y_p itself,
+// phi_l sqrt((sigma_p^2 + sigma_q^2) / 2) + eps, the same both ways. With the centre's sigma alone, a dark
+// centre of skewed noise (small sigma) refuses its bright neighbours while they take it in, and the gather
+// normalization loses energy.
+float pair_luminance_scale(float sigma_p, float sigma_q) {
+  return P.filter_phi.x * sqrt(0.5f * (sigma_p * sigma_p + sigma_q * sigma_q)) + P.filter_phi.w;
+}
+
 // Adaptive mode's edge-stopping weight of tap q (luminance Yq, at offset o in pixels) for centre c, without
-// the kernel's own weight: exp(-(|dY| / (phi_l sigma + eps))^2) times the depth and normal terms, each faded
+// the kernel's own weight: exp(-(|dY| / luminance_scale)^2) times the depth and normal terms, each faded
 // towards 1 with the centre's distance.
-float filter_weight(FilterCentre c, GPixel q, float Yq, vec2 o) {
-  float x = abs(Yq - c.Y) / c.luminance_scale;
+float filter_weight(FilterCentre c, GPixel q, float Yq, float luminance_scale, vec2 o) {
+  float x = abs(Yq - c.Y) / luminance_scale;
   float wz = mix(depth_weight(c.g, q, o, P.filter_phi.y), 1.0f, c.fade_z);
   float wn = mix(smoothstep(P.filter_phi.z, 1.0f, dot(c.g.n, q.n)), 1.0f, c.fade_n);
   return exp(-x * x) * wz * wn;
@@ -180,8 +189,10 @@ float filter_weight(FilterCentre c, GPixel q, float Yq, vec2 o) {
 
 // The same weight made symmetric, the geometric mean of the weights each way: what the energy-conserving
 // (splat) normalization needs, w(c, q) = w(q, c).
-float filter_weight_symmetric(FilterCentre c, FilterCentre q, vec2 o) {
-  return sqrt(filter_weight(c, q.g, q.Y, o) * filter_weight(q, c.g, c.Y, -o));
+float filter_weight_symmetric(FilterCentre c, FilterCentre q, vec2 o, bool pair) {
+  float scale_c = pair ? pair_luminance_scale(c.sigma, q.sigma) : c.luminance_scale;
+  float scale_q = pair ? scale_c : q.luminance_scale;
+  return sqrt(filter_weight(c, q.g, q.Y, scale_c, o) * filter_weight(q, c.g, c.Y, scale_q, -o));
 }
 
 // History test on the signal itself (adaptive mode, reproject.w = k > 0): the history's mean luminance Y_h
