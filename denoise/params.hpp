@@ -76,7 +76,7 @@ inline SvgfParams volume_defaults() {
   p.zbias_normal = 0.f;
   p.variance_normal = 180.f;
   p.variance_depth = 200.f;
-  p.taa_blend = 0.65f;
+  p.taa_blend = 0.75f;
   return p;
 }
 

@@ -238,7 +238,8 @@ TEST(Svgf, FirefliesDoNotSpreadAndNonFiniteInputNeverReachesTheOutput) {
     }
     std::cout << m << ": worst relative error of a firefly's 9x9 neighbourhood " << worst << "\n";
     if (std::string(m) == "adaptive") {
-      EXPECT_LT(worst, 0.015);  // measured 0.0048
+      // Measured 0.0123 (0.0048 with SVGF's centre sigma and filtered feedback, the defaults before).
+      EXPECT_LT(worst, 0.025);
     } else {
       // Classic mode has no firefly clamp: the 1e6 spreads (measured +291%), within 3x either way.
       EXPECT_GT(worst, 1.0);
@@ -425,7 +426,9 @@ TEST(Svgf, EachPercentileMechanismMattersWhenSwitchedOff) {
     off.firefly_bias = 1e30f;
     const double on_err = halo(SvgfParams{}), off_err = halo(off);
     std::cout << "firefly halo: clamp on " << on_err << ", off " << off_err << "\n";
-    EXPECT_GT(off_err, 6 * on_err);  // measured 0.0054 on, 0.10 off
+    // Measured 0.00011 on, 7.4 off (0.0054 and 0.10 with SVGF's centre sigma and filtered feedback: the
+    // pair's sigma lets the unclamped firefly's neighbours take it in).
+    EXPECT_GT(off_err, 6 * on_err);
   }
   {
     Frame dim = two_planes(W, H, 0.25f), bright = two_planes(W, H, 1.f);
