@@ -62,6 +62,15 @@ void vk_check_alloc(VkResult r, std::string_view what, const std::function<std::
   vk_check(r, what);
 }
 
+std::string printable(const char* text) {
+  std::string out;
+  for (const char* c = text; c && *c; ++c) {
+    const unsigned char u = static_cast<unsigned char>(*c);
+    out += u >= 32 && u < 127 ? std::string(1, *c) : fmt::format("\\x{:02x}", u);
+  }
+  return out;
+}
+
 std::string format_bytes(uint64_t bytes) {
   if (bytes < 1024) return fmt::format("{} B", bytes);
   static const char* units[] = {"KiB", "MiB", "GiB", "TiB", "PiB"};

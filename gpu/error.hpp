@@ -28,6 +28,10 @@ void vk_check_alloc(VkResult r, std::string_view what, const std::function<std::
 // "512 B", "3.0 KiB", "1.2 GiB": for messages and reports.
 std::string format_bytes(uint64_t bytes);
 
+// Text with every byte outside printable ASCII written as \xNN, for messages that quote a library's text
+// (stb's failure reason for an unknown PNG chunk holds the chunk's four raw bytes); null gives "".
+std::string printable(const char* text);
+
 }  // namespace haze::gpu
 
 // HAZE_VK(vkCreateBuffer(dev, &info, nullptr, &buf)) throws "vkCreateBuffer failed: VK_ERROR_...".

@@ -20,6 +20,7 @@
 #include <fstream>
 #include <memory>
 
+#include "gpu/error.hpp"
 #include "shaders/glsl.hpp"
 
 namespace haze::lights {
@@ -29,16 +30,6 @@ namespace {
 namespace fs = std::filesystem;
 
 constexpr size_t kMaxTexels = size_t(1) << 26;
-
-// stb's reason, printable.
-std::string stb_reason() {
-  std::string out;
-  for (const char* c = stbi_failure_reason(); c && *c; ++c) {
-    const unsigned char u = static_cast<unsigned char>(*c);
-    out += u >= 32 && u < 127 ? std::string(1, *c) : fmt::format("\\x{:02x}", u);
-  }
-  return out;
-}
 
 bool is_exr(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
@@ -112,7 +103,7 @@ void read_stb(const std::string& path, const std::string& where, EnvironmentMap&
   int w = 0, h = 0, n = 0;
   if (!stbi_info_from_file(f, &w, &h, &n))
     throw Error(fmt::format("{}: cannot decode ({}); use OpenEXR (.exr), Radiance HDR (.hdr) or PNG", where,
-                            stb_reason()));
+                            gpu::printable(stbi_failure_reason())));
   if (w <= 0 || h <= 0) throw Error(fmt::format("{}: the image is empty", where));
   if (size_t(w) * size_t(h) > kMaxTexels)
     throw Error(fmt::format("{}: {}x{} is over 2^26 texels; scale it down", where, w, h));
@@ -123,7 +114,8 @@ void read_stb(const std::string& path, const std::string& where, EnvironmentMap&
   const size_t count = m.texels.size() * 3;
   auto fill = [&](auto* data, auto decode) {
     if (!data)
-      throw Error(fmt::format("{}: cannot decode ({}); the file may be truncated", where, stb_reason()));
+      throw Error(fmt::format("{}: cannot decode ({}); the file may be truncated", where,
+                              gpu::printable(stbi_failure_reason())));
     for (size_t i = 0; i < count; ++i) m.texels[i / 3][int(i % 3)] = decode(data[i]);
   };
   if (stbi_is_hdr_from_file(f)) {

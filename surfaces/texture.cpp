@@ -10,6 +10,7 @@
 #include <glm/gtc/packing.hpp>
 #include <memory>
 
+#include "gpu/error.hpp"
 #include "shaders/glsl.hpp"
 
 namespace haze::surfaces {
@@ -20,16 +21,6 @@ constexpr size_t kMaxTexels = size_t(1) << 26;
 
 template <class T>
 using StbImage = std::unique_ptr<T, decltype(&stbi_image_free)>;
-
-// stb's reason, printable: for an unknown PNG chunk it holds the chunk's four raw bytes.
-std::string failure_reason() {
-  std::string out;
-  for (const char* c = stbi_failure_reason(); c && *c; ++c) {
-    const unsigned char u = static_cast<unsigned char>(*c);
-    out += u >= 32 && u < 127 ? std::string(1, *c) : fmt::format("\\x{:02x}", u);
-  }
-  return out;
-}
 
 }  // namespace
 
@@ -49,7 +40,7 @@ Texture load_texture(const std::string& path) {
   int w = 0, h = 0, n = 0;
   if (!stbi_info_from_file(f, &w, &h, &n))
     throw Error(fmt::format("texture {}: cannot decode ({}); use PNG, JPEG, TGA, BMP, PSD, GIF, PNM or HDR",
-                            path, failure_reason()));
+                            path, gpu::printable(stbi_failure_reason())));
   if (size_t(w) * size_t(h) > kMaxTexels)
     throw Error(fmt::format("texture {}: {}x{} is over 2^26 texels; scale it down", path, w, h));
 
@@ -60,8 +51,8 @@ Texture load_texture(const std::string& path) {
   const size_t count = t.texels.size() * 3;
   auto fill = [&](auto* data, auto decode) {
     if (!data)
-      throw Error(
-          fmt::format("texture {}: cannot decode ({}); the file may be truncated", path, failure_reason()));
+      throw Error(fmt::format("texture {}: cannot decode ({}); the file may be truncated", path,
+                              gpu::printable(stbi_failure_reason())));
     for (size_t i = 0; i < count; ++i) t.texels[i / 3][int(i % 3)] = decode(data[i]);
   };
   if (stbi_is_hdr_from_file(f)) {
