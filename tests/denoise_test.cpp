@@ -156,7 +156,7 @@ TEST(Svgf, StaticSceneConvergesFarBelowTheInputError) {
     // Measured 1512x (adaptive), 715x (classic) and 659x (adaptive with SVGF's feedback of the first filter
     // iteration, which feeds the filter's blur back into the history). Catches: the filtered feedback as
     // adaptive mode's default.
-    EXPECT_LT(output, input / (std::string(m) == "adaptive" ? 500 : 220)) << m;
+    EXPECT_LT(output, input / (std::string(m) == "adaptive" ? 1000 : 220)) << m;
     // Measured -0.9% (adaptive), -0.5% (filtered feedback) and -2.1% (classic: its gather normalization loses
     // energy on skewed noise, ClassicEnergyLossIsTheGatherNormalization; classic mode is Schied et al.'s by
     // definition and misses the 2% goal, docs/denoising.md).
