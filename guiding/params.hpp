@@ -11,17 +11,17 @@ namespace haze::guiding {
 
 struct GuidingParams {
   bool enabled = false;
-  std::string model = "gaussian";  // K Gaussian states per vertex, or a histogram (docs/guiding.md)
-  int bins = 64;                   // histogram: bins over the guided segment [0, t_g]
-  bool choose_probability = true;  // histogram: P per vertex from the learned second moments
-  float probability = 0.5f;        // P in q(t) = (1 - P) q_base + P q_guide
-  int spacing = 25;                // pixels between grid vertices (8 suits the histogram)
-  int states = 10;                 // K states per vertex
-  int candidates = 3;              // C candidates per distance sample
-  float min_width = 0.005f;        // floor of the guide's sigma, relative to the ray's [0, t_s]
-  float prior_width = 0.1f;        // sigma the prior pulls towards while a state has few samples, relative
-  float prior_count = 4.f;         // samples' worth of weight of that prior
-  int max_count = 1024;            // N cap: alpha = max(1/N, min_alpha)
+  std::string model = "histogram";  // a histogram per vertex, or K Gaussian states (docs/guiding.md)
+  int bins = 64;                    // histogram: bins over the guided segment [0, t_g]
+  bool choose_probability = true;   // histogram: P per vertex from the learned second moments
+  float probability = 0.5f;         // P in q(t) = (1 - P) q_base + P q_guide
+  int spacing = 10;                 // pixels between grid vertices (measured for the histogram)
+  int states = 10;                  // K states per vertex
+  int candidates = 3;               // C candidates per distance sample
+  float min_width = 0.005f;         // floor of the guide's sigma, relative to the ray's [0, t_s]
+  float prior_width = 0.1f;         // sigma the prior pulls towards while a state has few samples, relative
+  float prior_count = 4.f;          // samples' worth of weight of that prior
+  int max_count = 1024;             // N cap: alpha = max(1/N, min_alpha)
   float min_alpha = 0.01f;
   bool learn = true;     // update the states (off: sample from them as they are)
   bool temporal = true;  // carry the states to the next frame through the volume motion

@@ -126,7 +126,7 @@ TEST(Guiding, HistogramChoosesPAndReducesVarianceOnTheShaft) {
 
 // The histogram at a vertex below the image's centre after one frame of 4 samples per pixel: its
 // contribution's mean position and its fullest bin lie on the shaft (t = 6 / d.z there, half a unit either
-// side); its range R is the longest segment its rays saw (they leave the haze at z = 12).
+// side); its range R is the farthest exit from the haze along its rays (they leave it at z = 12).
 TEST(Guiding, HistogramLearnsTheShaftPosition) {
   scene::Scene s = make_scene(shaft_scene(true, 0.5, "histogram", true));
   render::Renderer r(context(), s);
@@ -151,6 +151,37 @@ TEST(Guiding, HistogramLearnsTheShaftPosition) {
   EXPECT_GT(R, 12.0 / d.z);
   EXPECT_LT(R, 12.0 / d.z * 1.1);
   EXPECT_NEAR(h[B + B - 1], (1 + glsl::GUIDE_FLOOR) * std::accumulate(h, h + B, 0.0), 1e-5 * h[B + B - 1]);
+  EXPECT_EQ(context().validation_messages(), 0u);
+}
+
+// One sample per pixel (one dispatch) is enough for a histogram: its range R comes from the haze's bounds
+// before the first sample, so that dispatch already bins (its fullest bin lies on the shaft), and each
+// sample also learns into a neighbour vertex, so the vertex counts more samples than its own 8 x 8 pixels
+// drew. Injections caught: no R from the bounds (guide_vertex_range returning 0: the first dispatch only
+// measures R, its bins stay empty), learning at the nearest vertex only (n = 64).
+TEST(Guiding, HistogramBinsFromTheFirstSampleAndLearnsFromNeighbours) {
+  scene::Scene s = make_scene(shaft_scene(true, 0.5, "histogram", true));
+  render::Renderer r(context(), s);
+  r.add_samples(1);
+  r.resolve();
+  const glm::uvec2 grid = guiding::grid_size(s.guiding, uint32_t(s.render.width), uint32_t(s.render.height));
+  const uint32_t B = uint32_t(s.guiding.bins), stride = guiding::Guide::hist_stride(B);
+  const std::vector<glm::vec4> raw = r.guide_states();
+  const float* h = &raw[0].x + size_t(2 * grid.x + 2) * stride;  // vertex (2, 2): pixel (16, 16)
+  const glm::dvec3 d = camera_directions(s)[16 * 32 + 16];
+  const double R = h[2 * B + 3], n = h[2 * B];
+  uint32_t fullest = 0;
+  for (uint32_t b = 1; b < B; ++b)
+    if (h[b] > h[fullest]) fullest = b;
+  std::cout << "after one sample: vertex (2, 2) n " << n << ", R " << R << ", fullest bin at "
+            << (fullest + 0.5) / B * R << " (shaft at " << 6.0 / d.z << ")\n";
+  EXPECT_GT(R, 12.0 / d.z);
+  EXPECT_LT(R, 12.0 / d.z * 1.1);
+  EXPECT_GT(std::accumulate(h, h + B, 0.0), 0.0);
+  EXPECT_NEAR((fullest + 0.5) / B * R, 6.0 / d.z, 0.5 / d.z + R / B);
+  // 64 of its own; the neighbours' expected share is 64 minus the own pixels' bilinear weight (about 28).
+  EXPECT_GT(n, 64 + 14);
+  EXPECT_LT(n, 64 + 42);
   EXPECT_EQ(context().validation_messages(), 0u);
 }
 

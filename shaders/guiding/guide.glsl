@@ -100,8 +100,9 @@ HAZE_INLINE float guide_mixture_pdf(GuideMixture m, float t) {
 }
 
 // ---- The histogram model (guiding.model "histogram") ----
-// One histogram per grid vertex over distances [0, R] in B equal bins (R: the longest guided segment its
-// first dispatch saw): bin b holds the sum of the contributions L of the samples that fell in it (its
+// One histogram per grid vertex over distances [0, R] in B equal bins (R: the farthest exit from the bounded
+// media along the vertex's rays, trace.comp guide_vertex_range, else the longest guided segment its first
+// dispatch saw): bin b holds the sum of the contributions L of the samples that fell in it (its
 // expectation is the ray integral over the bin), so it has as many lobes as the rays have sheets. In
 // distance, not relative to each ray's segment: neighbouring rays see a sheet at nearly the same distance
 // even where their segments end far apart. On a ray it is truncated to [0, min(t_g, R)] and renormalised,
@@ -110,14 +111,16 @@ HAZE_INLINE float guide_mixture_pdf(GuideMixture m, float t) {
 //   [0, B)    F_b, the folded sums;  [B, 2B) running sums of F_b + GUIDE_FLOOR total / B (the sampler's CDF)
 //   2B n (samples),  2B+1 mean distance of the contributions,  2B+2 the vertex's P,  2B+3 R (0: not yet)
 //   2B+4 + i  M_i = sum of L^2 q / q_{P_i}: the second moment the estimator would have at P_i
-// Its learning buffer: [0, B) sums of L, B n, B+1 + i the M_i, B+1+5 the longest t_g seen while R is 0,
+// Its learning buffer: [0, B) sums of L, B n, B+1 + i the M_i, B+1+5 R while it is 0 (the bounds' or the
+// longest t_g seen),
 // added by the trace pass and folded into the above after each dispatch (guide_hist_fold.comp), so that a
 // dispatch samples a histogram nobody writes.
 const uint GUIDE_P_CHOICES = 5u;  // guiding/params.hpp kGuideProbabilityChoices
 // The sampler's floor per bin, as a share of the histogram's total over B (guide_hist_fold.comp): on the
 // bench's beam with multiple scattering relMSE x spp 0.041 without it, 0.021 / 0.019 / 0.017 at 0.25 / 0.5 /
-// 1; on its sheets 0.298, 0.274, 0.262, 0.273 (docs/guiding.md).
-const float GUIDE_FLOOR = 0.5f;
+// 1; with the neighbour learning at spacing 10, beam / sheets 0.0156 / 0.235 at 0.5, 0.0147 / 0.245 at 0.75,
+// 0.0145 / 0.257 at 1 (docs/guiding.md).
+const float GUIDE_FLOOR = 0.75f;
 
 HAZE_INLINE float guide_p_choice(uint i) {
   return i == 0u ? 0.0f : i == 1u ? 0.25f : i == 2u ? 0.5f : i == 3u ? 0.75f : 0.9f;

@@ -118,10 +118,10 @@ struct GuideRay {
   uint h;
   float R, t_end, total;
 };
-GuideRay guide_ray(uint h, float t_g) {
+GuideRay guide_ray(uint h, float R, float t_g) {
   GuideRay g;
   g.h = h;
-  g.R = guide_hist[h + 2u * GUIDE_BINS + 3u];
+  g.R = R;
   g.t_end = min(t_g, g.R);
   g.total = 0.0f;
   uint b = guide_hist_bin(g.t_end, g.R, GUIDE_BINS);
@@ -158,6 +158,22 @@ float guide_hist_sample(GuideRay g, float u) {
   if (guide_hist_bin(t, g.R, GUIDE_BINS) != uint(lo))
     t = min(g.R * ((float(lo) + 0.5f) / float(GUIDE_BINS)), g.t_end);
   return t;
+}
+// The range R of the histogram of vertex gv where the media are bounded: the farthest exit from them along
+// 3 x 3 rays through the vertex's footprint (the pixels nearest to it), known before its first sample, so
+// that the first dispatch already bins; 0 where they are unbounded (R is then the longest t_g seen).
+float guide_vertex_range(uvec2 gv) {
+  vec2 size = vec2(scene.size.xy);
+  vec2 lo = clamp((vec2(gv) - 0.5f) * scene.guide_learn.x, vec2(0.0f), size);
+  vec2 hi = clamp((vec2(gv) + 0.5f) * scene.guide_learn.x, vec2(0.0f), size);
+  float R = 0.0f;
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) {
+      vec3 d = camera_direction(scene.cam_right.xyz, scene.cam_up.xyz, scene.cam_forward.xyz,
+                                mix(lo, hi, vec2(i, j) * 0.5f), size);
+      R = max(R, media_exit(scene.cam_position.xyz, d));
+    }
+  return R < 1e18f ? R : 0.0f;
 }
 void guide_learn_add(uint i, float x) {
 #if HAZE_GUIDE_ATOMIC_FLOAT
@@ -279,19 +295,27 @@ void main() {
   // beyond is negligible; q_base still covers it).
   float t_g =
       tau_total > GUIDE_MAX_TAU ? maj_walk(cam_o, cam_d, 0.0f, t_s, GUIDE_MAX_TAU).t : min(t_s, t_media);
+  vec2 guide_pos = (vec2(pix) + jitter) / scene.guide_learn.x;
 #if HAZE_GUIDE_HIST
   // The vertices choose their P (guide.y) or take the scene's: here P_guide only says the guide is on.
   float P_guide =
       t_g > 0.0f && t_g < 1e18f && !delta_cam && (scene.guide.y > 0.5f || scene.guide.x > 0.0f) ? 1.0f : 0.0f;
   // The current sample's vertex's histogram on this ray (total 0: empty).
   GuideRay guide_r = GuideRay(0u, 0.0f, 0.0f, 0.0f);
+  // The nearest vertex: a histogram learns from rays that see their sheets at about the same distances (a
+  // stochastic bilinear choice doubles the footprint; measured no better, docs/guiding.md). Its range R:
+  // stored once its first dispatch is folded; before that, from the media's bounds (or 0: not yet known).
+  uvec2 guide_gv = uvec2(clamp(ivec2(round(guide_pos)), ivec2(0), ivec2(scene.guide_grid.xy) - 1));
+  uint guide_h = (guide_gv.y * scene.guide_grid.x + guide_gv.x) * scene.guide_grid.z;
+  float guide_R = guide_hist[guide_h + 2u * GUIDE_BINS + 3u];
+  bool guide_R_new = guide_R == 0.0f;
+  if (guide_R_new && P_guide > 0.0f) guide_R = guide_vertex_range(guide_gv);
   float q_rest = 0.0f, q_guide = 0.0f;  // q(t_j) without the guide, and the histogram's pdf at t_j
 #else
   float P_guide = t_g > 0.0f && t_g < 1e18f && !delta_cam ? scene.guide.x : 0.0f;
   vec4 guide_chosen = vec4(0.0f);  // the state the current sample learns into
   float guide_mean_w = 0.0f;       // mean candidate weight, the bar for writing a state back
 #endif
-  vec2 guide_pos = (vec2(pix) + jitter) / scene.guide_learn.x;
 #endif
   // The first sample's delta track also estimates T(0, t_s) (1 when it reaches t_s): the surface term
   // needs no pass of its own.
@@ -397,10 +421,7 @@ void main() {
       float P = 0.0f;
 #if HAZE_GUIDE_HIST
       if (P_guide > 0.0f) {
-        // The nearest vertex: a histogram learns from rays that see their sheets at about the same distances
-        // (a stochastic bilinear choice doubles the footprint; measured no better, docs/guiding.md).
-        uvec2 gv = uvec2(clamp(ivec2(round(guide_pos)), ivec2(0), ivec2(scene.guide_grid.xy) - 1));
-        guide_r = guide_ray((gv.y * scene.guide_grid.x + gv.x) * scene.guide_grid.z, t_g);
+        guide_r = guide_ray(guide_h, guide_R, t_g);
         if (guide_r.total > 0.0f) {
           P = guide_hist[guide_r.h + 2u * GUIDE_BINS + 2u];
           vp_g += guide_hist[guide_r.h + 2u * GUIDE_BINS + 1u];
@@ -815,9 +836,29 @@ void main() {
         uint b = guide_hist_bin(t_j, guide_r.R, GUIDE_BINS);
         if (b < GUIDE_BINS && L > 0.0f) guide_learn_add(l + b, L);
         guide_learn_add(l + GUIDE_BINS, 1.0f);
-        // Until the fold fixes R: the longest segment (a racy max; a lost maximum only shortens R).
+        // And into a vertex next to the pixel (stochastic bilinear; nothing more when it is the same one): a
+        // histogram then learns from the rays around its own too, a less noisy pdf on short runs at the cost
+        // of some blur (measured a gain on the beam and the sheets, docs/guiding.md).
+        uint v_n = guide_vertex(guide_pos, rng);
+        uint h_n = v_n * scene.guide_grid.z;
+        if (h_n != guide_r.h) {
+          uint l_n = v_n * guide_learn_stride(GUIDE_BINS);
+          float R_n = guide_hist[h_n + 2u * GUIDE_BINS + 3u];
+          if (R_n == 0.0f) {
+            R_n = guide_vertex_range(uvec2(v_n % scene.guide_grid.x, v_n / scene.guide_grid.x));
+            if (R_n > 0.0f) guide_learn[l_n + GUIDE_BINS + 1u + GUIDE_P_CHOICES] = R_n;
+          }
+          uint b_n = guide_hist_bin(t_j, R_n, GUIDE_BINS);
+          if (b_n < GUIDE_BINS && L > 0.0f) guide_learn_add(l_n + b_n, L);
+          guide_learn_add(l_n + GUIDE_BINS, 1.0f);
+        }
+        // Until the fold fixes R: the bounds' R (the same from every sample of the vertex), else the longest
+        // segment (a racy max; a lost maximum only shortens R).
         uint l_max = l + GUIDE_BINS + 1u + GUIDE_P_CHOICES;
-        if (guide_r.R == 0.0f && t_g > guide_learn[l_max]) guide_learn[l_max] = t_g;
+        if (guide_R_new && guide_R > 0.0f)
+          guide_learn[l_max] = guide_R;
+        else if (guide_R_new && t_g > guide_learn[l_max])
+          guide_learn[l_max] = t_g;
         if (guide_r.total > 0.0f && L > 0.0f && q_j < T_INF)
           for (uint i = 0u; i < GUIDE_P_CHOICES; ++i)
             guide_learn_add(l + GUIDE_BINS + 1u + i,
