@@ -62,6 +62,7 @@ inline SvgfParams volume_defaults() {
   p.filter_sigma = "estimate";
   p.normalization = "splat";
   p.luminance_sigma = "centre";
+  p.feedback = "filtered";
   p.accumulate = 0.8f;
   p.adapt_ipr = 3.f;
   p.adapt_low = 0.056f;
@@ -76,7 +77,7 @@ inline SvgfParams volume_defaults() {
   p.zbias_normal = 0.f;
   p.variance_normal = 180.f;
   p.variance_depth = 200.f;
-  p.taa_blend = 0.75f;
+  p.taa_blend = 0.65f;
   return p;
 }
 

@@ -5,7 +5,7 @@
 // surface G-buffer as its geometry, gather normalization, SVGF's sample sigma, the seed's constants) in the
 // same run; thresholds sit within about 3x of the figures measured here (docs/denoising.md has the
 // figures at the bench's 192x108). The goal of issue 13 that is not met and so not tested here: the sheets'
-// contrast within 15% of the reference's by frame 4 (-40% at this size, -25% at 192x108).
+// contrast within 15% of the reference's by frame 4 (-43% at this size, -30% at 192x108).
 #include <gtest/gtest.h>
 
 #include <fstream>
@@ -50,7 +50,7 @@ TEST(Shafts, SheetsMeanAndBlocksImproveOnTheFormerVolumeSettings) {
                                {"taa_blend", 0.804},
                                {"history_test", 0}}}}}});
   const json centre = run({{"denoise", {{"surface", {{"luminance_sigma", "centre"}}}}}});
-  const json filtered = run({{"denoise", {{"volume", {{"feedback", "filtered"}}}}}});
+  const json untested = run({{"denoise", {{"volume", {{"history_test", 0}}}}}});
 
   const double mean_now = late_mean(now, "mean_luminance_over_reference", "volume");
   const double mean_former = late_mean(former, "mean_luminance_over_reference", "volume");
@@ -75,16 +75,17 @@ TEST(Shafts, SheetsMeanAndBlocksImproveOnTheFormerVolumeSettings) {
             << "surface mean error, frames 2-5: luminance_sigma pair (default) " << surface_pair
             << ", centre " << surface_centre << "\n"
             << "sheet contrast / reference's at frame 4: defaults " << contrast(now) << ", former "
-            << contrast(former) << ", volume feedback filtered " << contrast(filtered) << "\n"
+            << contrast(former) << "\n"
             << "8x8 block pattern at frame 0 / reference's: defaults " << blocks(now) << ", former "
             << blocks(former) << "\n"
             << "FLIP of the composite at frame 4: defaults " << flip(now) << ", former " << flip(former)
             << "\n"
             << "volume history where wrong / where right, frames 2-5: defaults " << history_drop(now)
-            << ", volume feedback filtered " << history_drop(filtered) << "\n";
+            << ", history_test 0 " << history_drop(untested) << "\n";
 
   // Energy: the volume instance's splat normalization keeps the mean (measured +0.4% to -2.1% over runs
-  // without the history test, -1.9% to -2.9% with it at this size, where a sheet is 2-4 pixels wide; -0.4% to
+  // without the history test, -2.6% to -4.0% with it at this size before the histogram distance guide
+  // (+1.0% with it, the former settings -6.5%), where a sheet is 2-4 pixels wide; -0.4% to
   // -1.5% at the bench's 192x108: guiding learns in a different order each run, and the noisy input's own
   // figure moves by as much, +0.7% to +3.1%); the former gather lost 14 to 17% with the lights chosen
   // uniformly, 6.9 to 7.9% since the choice by power (issue 14) sends 96% of the shadow rays to the sun (a
@@ -97,26 +98,22 @@ TEST(Shafts, SheetsMeanAndBlocksImproveOnTheFormerVolumeSettings) {
   // bright neighbours and the mean drops (measured -6.6%). Catches: luminance_sigma "pair" ignored.
   EXPECT_LT(std::abs(surface_pair), 0.04);
   EXPECT_LT(surface_centre, surface_pair - 0.02);
-  // Sheets: the contrast lost at frame 4 shrinks (measured -40% against -52%; at this size a sheet is 2-4
+  // Sheets: the contrast lost at frame 4 shrinks (measured -43% against -58%; at this size a sheet is 2-4
   // pixels wide), though not to the goal. Catches: filter_sigma "estimate" ignored (the luminance term
   // steered by one frame's sigma: measured a gain of 0.016 instead of 0.070). The volume's geometry alone
   // moves this figure too little at this size to be caught here (0.438 with the surface G-buffer);
   // the bench measures it at 192x108 (docs/denoising.md).
   EXPECT_GT(contrast(now) - contrast(former), 0.04);
-  // Frame 0 shows no 8x8 blocks (measured 0.98 to 1.03 of the reference's step ratio, the former 1.35).
+  // Frame 0 shows no 8x8 blocks (measured 0.98 of the reference's step ratio, the former 1.36).
   EXPECT_LT(blocks(now), 1.15);
   EXPECT_GT(blocks(former), 1.2);
-  // The composite is closer to the reference by FLIP (measured 0.128 against 0.141).
+  // The composite is closer to the reference by FLIP (measured 0.122 against 0.139).
   EXPECT_LT(flip(now), flip(former) - 0.007);
-  // The history is the unfiltered accumulation (feedback "accumulated"): SVGF's feedback of the first filter
-  // iteration blurs the sheets again every frame (contrast at frame 4 measured 0.594 to 0.599 of the
-  // reference's against 0.501 to 0.508 over runs). Catches: the filtered feedback as the default.
-  EXPECT_GT(contrast(now) - contrast(filtered), 0.04);
-  // The history test cuts where the reprojection is wrong (the reference's luminance at the reprojected
-  // position differs by more than 30%) with the filtered feedback, whose blur it sees: wrong / right 0.77 to
-  // 0.78 over runs (0.996 to 1.005 with history_test 0 in earlier runs). On the accumulated history, whose
-  // noise it weighs correctly, it hardly cuts at 4 spp (1.000 to 1.007): the neighbours are a weak witness.
-  EXPECT_LT(history_drop(filtered), 0.9);
+  // The volume history drops where the reprojection is wrong (the reference's luminance at the reprojected
+  // position differs by more than 30%): wrong / right 0.816 with the history test, 0.996 to 1.005
+  // without it. Catches: the history test switched off or ignored (history_test 0, the `untested` run).
+  EXPECT_LT(history_drop(now), 0.9);
+  EXPECT_GT(history_drop(untested), 0.98);
   EXPECT_EQ(context().validation_messages(), 0u);
 }
 
