@@ -148,8 +148,8 @@ void reflect(V& v, SvgfParams& p) {
   v.field(
       "luminance_sigma", p.luminance_sigma, Choices{"centre", "pair"},
       "adaptive mode: the luminance term compares |Y_q - Y_p| with phi_l sigma_p, the centre's (SVGF), or "
-      "with "
-      "phi_l sqrt((sigma_p^2 + sigma_q^2) / 2), the spread of the difference, the same both ways (with the "
+      "with phi_l sqrt((sigma_p^2 + sigma_q^2) / 2), the spread of the difference, the same both ways (with "
+      "the "
       "centre's, dark centres of skewed noise refuse bright neighbours that take them in: gather loses "
       "energy)");
   v.field("phi_luminance", p.phi_luminance, Range::at_least(0), "luminance edge-stopping scale");

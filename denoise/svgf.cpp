@@ -94,7 +94,7 @@ Svgf::~Svgf() = default;
 void Svgf::create_kernels() {
   const uint32_t classic = params_.mode == "classic" ? 1 : 0;
   const uint32_t subsampled = params_.kernel == "subsampled" ? 1 : 0;
-  const uint32_t pair = params_.mode != "classic" && params_.luminance_sigma == "pair" ? 1 : 0;
+  const uint32_t pair = !classic && params_.luminance_sigma == "pair" ? 1 : 0;
   const uint64_t pixels = uint64_t(width_) * height_;
   const uint64_t blocks = uint64_t(gpu::div_up(width_, kBlock)) * gpu::div_up(height_, kBlock);
   auto decl = [&](const char* pass) {
