@@ -538,6 +538,15 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
       rows.back()["min"] = c["min"];
       rows.back()["max"] = c["max"];
     }
+    const auto& cf = sh["contrast_error_accumulation_only_from_frame_4"];
+    if (!cf.empty()) {
+      add("shafts contrast error f>=4, accumulation only", cf["mean"],
+          fmt::format("the same with the volume instance reduced to its temporal accumulation: what the "
+                      "reprojection alone keeps ({:+.3f}..{:+.3f})",
+                      cf["min"].get<double>(), cf["max"].get<double>()));
+      rows.back()["min"] = cf["min"];
+      rows.back()["max"] = cf["max"];
+    }
     for (const char* inst : {"surface", "volume"}) {
       const auto& m = sh[fmt::format("mean_error_{}", inst)];
       if (m.empty()) continue;

@@ -239,6 +239,8 @@ json bench_shafts(gpu::Context& ctx, const ShaftsOptions& o) {
   std::vector<float> prev_ref_Y;
   json frames = json::array();
   std::vector<double> contrast_after4, mean_surface, mean_volume;
+  std::vector<std::vector<int8_t>> masks;
+  std::vector<double> contrast_refs;
   for (int f = 0; f < o.frames; ++f) {
     render::use_frame(ctx, r, s, f, f == 0);
     r->add_samples(o.spp);
@@ -258,6 +260,8 @@ json bench_shafts(gpu::Context& ctx, const ShaftsOptions& o) {
     const double c_ref = sheet_contrast(Y_ref, mask);
     const double c_dn = sheet_contrast(luminance_of(d_vol), mask);
     const double c_noisy = sheet_contrast(luminance_of(n_vol), mask);
+    masks.push_back(mask);
+    contrast_refs.push_back(c_ref);
     const json c_comp =
         ratio(sheet_contrast(luminance_of(d_L), mask), sheet_contrast(luminance_of(r_L), mask));
     size_t in = 0, between = 0;
@@ -343,6 +347,30 @@ json bench_shafts(gpu::Context& ctx, const ShaftsOptions& o) {
       png("volume_reference", r_vol);
     }
   }
+  // The same sequence with the volume instance reduced to its temporal accumulation (no filter, no TAA, no
+  // history cap or test, the accumulation as its own history): the sheet contrast that the reprojection
+  // alone keeps, the floor under what the spatial passes and the history's tests can reach.
+  std::vector<double> floor_after4;
+  if (o.accumulation_floor && s.denoise.volume.enabled && !masks.empty()) {
+    scene::Scene fs = s;
+    fs.denoise.volume.iterations = 0;
+    fs.denoise.volume.taa_blend = 0.f;
+    fs.denoise.volume.feedback = "accumulated";
+    fs.denoise.volume.history_test = 0.f;
+    fs.denoise.volume.adapt_strength = 0.f;
+    std::unique_ptr<render::Renderer> fr;
+    for (int f = 0; f < o.frames; ++f) {
+      render::use_frame(ctx, fr, fs, f, f == 0);
+      fr->add_samples(o.spp);
+      const render::Image img = fr->resolve();
+      if (!img.volume_denoised) break;
+      const double c = sheet_contrast(luminance_of(img.volume_denoised->colour), masks[size_t(f)]);
+      const json over = ratio(c, contrast_refs[size_t(f)]);
+      frames[size_t(f)]["sheet_contrast"]["accumulation_only_over_reference"] = over;
+      if (f >= 4 && over.is_number()) floor_after4.push_back(over.get<double>() - 1);
+    }
+  }
+
   std::vector<eval::Channels> a, b, c, d;
   for (int f = 0; f < o.frames; ++f) {
     a.push_back(channels(seq_comp[size_t(f)]));
@@ -363,6 +391,7 @@ json bench_shafts(gpu::Context& ctx, const ShaftsOptions& o) {
           {"volume_motion", s.denoise.volume_motion},
           {"per_frame", frames},
           {"contrast_error_from_frame_4", summary_of(contrast_after4)},
+          {"contrast_error_accumulation_only_from_frame_4", summary_of(floor_after4)},
           {"mean_error_surface", summary_of(mean_surface)},
           {"mean_error_volume", summary_of(mean_volume)},
           {"temporal",
@@ -376,25 +405,28 @@ void print_shafts(const json& j) {
       j["size"][0].get<int>(), j["size"][1].get<int>(), j["frames"].get<int>(), j["spp"].get<int>(),
       j["reference"]["spp"].get<int>(), j["reference"]["volume_samples"].get<int>(),
       j["volume_geometry"].get<std::string>(), j["volume_motion"].get<std::string>());
-  fmt::print("  {:>3} {:>15} {:>13} {:>15} {:>13} {:>9} {:>9} {:>8} {:>8} {:>11}\n", "f", "relMSE comp",
-             "FLIP comp", "relMSE vol", "FLIP vol", "contrast", "cmp.cont", "mean S", "mean V", "hist w/r");
+  fmt::print("  {:>3} {:>15} {:>13} {:>15} {:>13} {:>9} {:>9} {:>9} {:>8} {:>8} {:>11}\n", "f", "relMSE comp",
+             "FLIP comp", "relMSE vol", "FLIP vol", "contrast", "acc.only", "cmp.cont", "mean S", "mean V",
+             "hist w/r");
   for (const auto& f : j["per_frame"]) {
     const auto &rm = f["relmse"], &fl = f["flip_ldr"], &c = f["sheet_contrast"],
                &m = f["mean_luminance_over_reference"], &h = f["volume_history"];
     fmt::print(
         "  {:>3} {:>7.3f}/{:<7.3f} {:>6.3f}/{:<6.3f} {:>7.3f}/{:<7.3f} {:>6.3f}/{:<6.3f} {:>+8.1f}% "
-        "{:>+8.1f}% {:>+7.1f}% {:>+7.1f}% {:>5.1f}/{:<5.1f}\n",
+        "{:>+8.1f}% {:>+8.1f}% {:>+7.1f}% {:>+7.1f}% {:>5.1f}/{:<5.1f}\n",
         f["frame"].get<int>(), rm["composite"].get<double>(), rm["composite_noisy"].get<double>(),
         fl["composite"].get<double>(), fl["composite_noisy"].get<double>(), rm["volume"].get<double>(),
         rm["volume_noisy"].get<double>(), fl["volume"].get<double>(), fl["volume_noisy"].get<double>(),
         100 * (number_or_nan(c["volume_over_reference"]) - 1),
+        100 * (number_or_nan(c.value("accumulation_only_over_reference", json())) - 1),
         100 * (number_or_nan(c["composite_over_reference"]) - 1), 100 * number_or_nan(m["surface"]),
         100 * number_or_nan(m["volume"]), h.value("mean_where_wrong", 0.0), h.value("mean_where_right", 0.0));
   }
   fmt::print(
       "  (denoised/noisy; contrast: the sheets' contrast in the denoised volume term and composite against "
-      "the reference's; mean: denoised surface and volume against the reference's; hist: volume history "
-      "where the reprojection is wrong / right)\n");
+      "the reference's; acc.only: the volume's contrast from its temporal accumulation alone, the "
+      "reprojection's floor; mean: denoised surface and volume against the reference's; hist: volume "
+      "history where the reprojection is wrong / right)\n");
   const auto& b0 = j["per_frame"][0]["block_ratio"];
   fmt::print(
       "  8x8 block pattern at frame 0 (steps across the 8x8 grid / other steps): denoised volume {:.3f}, "

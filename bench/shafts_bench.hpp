@@ -28,6 +28,9 @@ struct ShaftsOptions {
   std::string images_dir;            // "" : none; else PNGs of frames 0, 4 and the last
   std::string label = "shafts";      // prefix of the PNG names
   nlohmann::json set;                // applied to the scene after it is made (e.g. {"denoise": {...}})
+  // Also run the sequence with the volume instance reduced to its temporal accumulation and report the sheet
+  // contrast that the reprojection alone keeps.
+  bool accumulation_floor = true;
 };
 
 // The sequence's scene: `scenes/shafts.json` is shafts_scene(ShaftsOptions{}) as written by the bench.

@@ -895,6 +895,7 @@ TEST_F(Cli, BenchReportsRatiosAsJson) {
       EXPECT_GT(j["guiding"][key][ratio]["ratio_of_means"].get<double>(), 0.0) << key << " " << ratio;
   EXPECT_EQ(j["shafts"]["per_frame"].size(), 2u);
   EXPECT_GT(j["shafts"]["per_frame"][1]["flip_ldr"]["composite"].get<double>(), 0.0);
+  EXPECT_TRUE(j["shafts"]["per_frame"][1]["sheet_contrast"].contains("accumulation_only_over_reference"));
 }
 
 // scenes/smoke.json, the demo of a drifting smoke sequence that carries its velocity, under a generated sky:
