@@ -26,10 +26,11 @@ struct SvgfParams {
   // own virtual points (their depth and its screen-space gradient; no normals), docs/denoising.md.
   std::string geometry = "surface";  // surface | virtual_points
   // Reprojection.
-  float normal_threshold = 37.f;    // degrees
-  float depth_tolerance = 0.0264f;  // tau, relative
-  float border_history = 2.f;       // history cap when motion leaves the screen
-  float history_test = 0.f;         // k of the history's test against the neighbours' mean (0: off)
+  float normal_threshold = 37.f;            // degrees
+  float depth_tolerance = 0.0264f;          // tau, relative
+  float border_history = 2.f;               // history cap when motion leaves the screen
+  float history_test = 0.f;                 // k of the history's test against the neighbours' mean (0: off)
+  std::string history_witness = "history";  // history | output: what the history test compares
   // What the next frame reprojects: the accumulated colour, or the first filter iteration's output (SVGF's
   // choice, which compounds the filter's blur and energy loss from frame to frame; classic mode always).
   std::string feedback = "accumulated";  // accumulated | filtered
@@ -63,6 +64,7 @@ inline SvgfParams volume_defaults() {
   p.normalization = "splat";
   p.luminance_sigma = "centre";
   p.feedback = "filtered";
+  p.history_witness = "output";
   p.accumulate = 0.8f;
   p.adapt_ipr = 3.f;
   p.adapt_low = 0.056f;
@@ -124,6 +126,12 @@ void reflect(V& v, SvgfParams& p) {
       "10% plus k standard errors is cut, to this frame's sample past 2k (0: off; the volume instance's "
       "reprojection with one virtual point per pixel is wrong where a ray crosses several sheets)");
   v.field(
+      "history_witness", p.history_witness, Choices{"history", "output"},
+      "adaptive mode, history_test > 0: what the test compares with the neighbours' mean, the reprojected "
+      "history itself or the previous frame's denoised output at the same place (smooth: the test does not "
+      "select on the history's own noise, which with skewed noise cuts bright histories more often than dark "
+      "ones and loses energy); \"output\" needs an instance that does not remodulate (the volume)");
+  v.field(
       "feedback", p.feedback, Choices{"accumulated", "filtered"},
       "adaptive mode: the next frame's colour history is this frame's temporal accumulation, or the first "
       "filter iteration's output as in SVGF (classic mode always), which feeds the filter's blur and "
@@ -173,6 +181,10 @@ inline void validate(SvgfParams& p, const reflection::Where& w) {
 }
 
 inline void validate(DenoiseSettings& d, const reflection::Where& w) {
+  if (d.surface.history_witness == "output")
+    w.fail("surface.history_witness",
+           "the surface instance's output is remodulated by the albedo and carries emission, the history "
+           "does not; only \"history\" is valid");
   if (d.surface.geometry != "surface")
     w.fail("surface.geometry",
            fmt::format("the surface instance has no virtual points; only \"surface\" is valid, got \"{}\"",

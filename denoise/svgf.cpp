@@ -142,6 +142,7 @@ void Svgf::create_kernels() {
   gpack(a);
   a.buffer("motion", pixels * 8).buffer("percentiles", blocks * 16).buffer("hist_colour", half4);
   a.buffer("hist_moments", moments).buffer("out_colour", half4).buffer("out_moments", half4);
+  if (witness()) a.define("SVGF_HISTORY_WITNESS").buffer("prev_output", half4);
   accumulate_pass_ = make(std::move(a.push(8).specialize({classic})));
   gpu::KernelDecl v = decl("variance");
   gbuffer(v, "");
@@ -189,10 +190,17 @@ void Svgf::set_emission(bool emission) {
 }
 
 void Svgf::set_params(const SvgfParams& params) {
+  if (remodulate_ && params.history_witness == "output")
+    throw gpu::Error(
+        fmt::format("svgf.{}: history_witness \"output\" needs an instance that does not "
+                    "remodulate (its output carries the albedo, its history does not)",
+                    name_));
   bool rebuild = !accumulate_pass_.valid() || params.mode != params_.mode ||
                  params.kernel != params_.kernel || params.geometry != params_.geometry ||
                  params.normalization != params_.normalization ||
-                 params.luminance_sigma != params_.luminance_sigma;
+                 params.luminance_sigma != params_.luminance_sigma ||
+                 params.history_witness != params_.history_witness ||
+                 (params.history_test > 0) != (params_.history_test > 0);
   if (params.geometry != params_.geometry) has_history_ = false;  // the history's tests change meaning
   params_ = params;
   make_geometry_buffers();
@@ -284,6 +292,7 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
     gpu::Bindings b = common;
     b.set("percentiles", percentiles_).set("hist_colour", history_).set("hist_moments", moments_);
     b.set("out_colour", temp_[0]).set("out_moments", temp_[1]);
+    if (witness()) b.set("prev_output", taa_);
     accumulate_pass_.dispatch(cmd, b, push, gx, gy);
   }
   end();

@@ -109,6 +109,10 @@ class Svgf {
   gpu::Kernel weight_sum_pass_;
   bool splat() const { return params_.normalization == "splat" && params_.mode != "classic"; }
   bool own_geometry() const { return params_.geometry == "virtual_points"; }
+  // The history test judges the previous frame's output instead of the history (history_witness "output").
+  bool witness() const {
+    return params_.mode != "classic" && params_.history_test > 0 && params_.history_witness == "output";
+  }
   void make_geometry_buffers();
   double pipeline_ms_ = 0;
   void create_kernels();

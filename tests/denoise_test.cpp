@@ -11,6 +11,7 @@
 #include <random>
 
 #include "denoise/svgf.hpp"
+#include "expect_error.hpp"
 #include "render/renderer.hpp"
 #include "shaders/glsl.hpp"
 #include "test_util.hpp"
@@ -707,6 +708,27 @@ TEST(Svgf, MirroredInputGivesTheMirroredOutput) {
       EXPECT_LT(worst, 1.5e-3) << kernel << (x_axis ? " x" : " y");
       EXPECT_LT(sum, 1e-6) << kernel << (x_axis ? " x" : " y");
     }
+  EXPECT_EQ(context().validation_messages(), 0u);
+}
+
+// The history test may judge the previous output instead of the history only where both are in the same
+// units: a remodulating instance's output carries the albedo (and emission) that its history does not.
+TEST(Svgf, OutputWitnessNeedsAnInstanceThatDoesNotRemodulate) {
+  SvgfParams p;
+  p.history_test = 1.f;
+  p.history_witness = "output";
+  try {
+    denoise::Svgf svgf(context(), "surface", p, 16, 16, true);
+    ADD_FAILURE() << "no error for a remodulating instance";
+  } catch (const gpu::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("svgf.surface: history_witness \"output\" needs an instance that "
+                                         "does not remodulate"),
+              std::string::npos)
+        << e.what();
+  }
+  EXPECT_NO_THROW(denoise::Svgf(context(), "volume", denoise::volume_defaults(), 16, 16, false));
+  read_error({{"denoise", {{"surface", {{"history_witness", "output"}}}}}},
+             {"scene.json: denoise.surface.history_witness", "only \"history\" is valid"});
   EXPECT_EQ(context().validation_messages(), 0u);
 }
 

@@ -2,9 +2,9 @@
 // SVGF pass 2: temporal accumulation. Firefly clamp of the input (adaptive mode), reprojection of the
 // history with normal and depth tests, stochastic bilinear taps, an extended search after rejection and
 // border reuse for motion that leaves the screen (adaptive mode), the percentile-adaptive history cap, the
-// history test against the neighbours' mean (adaptive mode, history_test > 0), and the blend of colour and
-// luminance moments. The classic mode (Schied et al. 2017) averages the valid bilinear taps, falls back to a
-// 3x3 search and blends with alpha = max(0.2, 1/n).
+// history test against the neighbours' mean (adaptive mode, history_test > 0; on the previous frame's output
+// with SVGF_HISTORY_WITNESS), and the blend of colour and luminance moments. The classic mode (Schied et al.
+// 2017) averages the valid bilinear taps, falls back to a 3x3 search and blends with alpha = max(0.2, 1/n).
 #extension GL_GOOGLE_include_directive : require
 layout(local_size_x = 8, local_size_y = 8) in;
 layout(constant_id = 0) const uint CLASSIC = 0u;
@@ -26,6 +26,12 @@ layout(std430, binding = BINDING_hist_colour) readonly buffer HistoryColour {
 layout(std430, binding = BINDING_hist_moments) readonly buffer HistoryMoments {
   float hist_moments[];
 };
+#ifdef SVGF_HISTORY_WITNESS
+// The previous frame's denoised output (TAA's), what the history test judges (history_witness "output").
+layout(std430, binding = BINDING_prev_output) readonly buffer PrevOutput {
+  uvec2 prev_output[];
+};
+#endif
 layout(std430, binding = BINDING_out_colour) writeonly buffer OutColour {
   uvec2 out_colour[];  // rgb, history length
 };
@@ -85,6 +91,7 @@ struct History {
   vec3 colour;
   float m1, m2, n;
   float m1_z;  // own geometry: m1 times the history's virtual point depth
+  float Y_w;   // the history test's witness: the luminance of the history or of the previous output there
 };
 
 History history_at(uint p, float weight) {
@@ -95,6 +102,11 @@ History history_at(uint p, float weight) {
   h.m1 = hist_moments[b] * weight;
   h.m2 = hist_moments[b + 1u] * weight;
   h.n = hist_moments[b + 2u] * weight;
+#ifdef SVGF_HISTORY_WITNESS
+  h.Y_w = luminance(unpack_half4(prev_output[p]).rgb) * weight;
+#else
+  h.Y_w = luminance(h.colour);
+#endif
 #ifdef SVGF_OWN_GEOMETRY
   h.m1_z = h.m1 * prev_geo[p];
 #else
@@ -109,6 +121,7 @@ void add(INOUT(History) a, History b) {
   a.m2 += b.m2;
   a.n += b.n;
   a.m1_z += b.m1_z;
+  a.Y_w += b.Y_w;
 }
 
 bool inside(ivec2 q) {
@@ -154,7 +167,7 @@ void main() {
   bool found = false;
   History h;
   h.colour = vec3(0.0f);
-  h.m1 = h.m2 = h.n = h.m1_z = 0.0f;
+  h.m1 = h.m2 = h.n = h.m1_z = h.Y_w = 0.0f;
   if (pc.has_history != 0u) {
     vec2 size = vec2(W, H);
     if (CLASSIC == 0u && (any(lessThan(q, vec2(0.0f))) || any(greaterThanEqual(q, size)))) {
@@ -264,7 +277,9 @@ void main() {
         // variance per sample, which also gives the history's (the same signal averaged over h.n frames). A
         // failed history gives way to this frame's sample. The pixel's own sample takes no part in the
         // decision, so the reset does not select on the value it keeps (with skewed noise that would bias the
-        // mean).
+        // mean). The history's own luminance is judged by default; with SVGF_HISTORY_WITNESS the previous
+        // frame's denoised output at the same place, smooth, so that a bright history of skewed noise is not
+        // cut for its own noise (which loses energy).
         float s1 = 0.0f, s2 = 0.0f, k = 0.0f;
         for (int dy = -1; dy <= 1; ++dy)
           for (int dx = -1; dx <= 1; ++dx) {
@@ -281,7 +296,7 @@ void main() {
         // Sparse noise leaves many neighbourhoods all zero (no variance seen): the history's own sample
         // variance bounds the estimate from below.
         var_q = max(var_q, h.m2 - h.m1 * h.m1);
-        cap = mix(cap, 1.0f, history_test(Y_h, var_q / max(h.n, 1.0f), mean_n, var_q / k));
+        cap = mix(cap, 1.0f, history_test(h.Y_w, var_q / max(h.n, 1.0f), mean_n, var_q / k));
       }
     }
     n = min(h.n + 1.0f, max(cap, 1.0f));
