@@ -63,7 +63,7 @@ inline SvgfParams volume_defaults() {
   p.filter_sigma = "estimate";
   p.normalization = "splat";
   p.luminance_sigma = "centre";
-  p.feedback = "filtered";
+  p.feedback = "accumulated";
   p.history_witness = "output";
   p.accumulate = 0.8f;
   p.adapt_ipr = 3.f;
@@ -72,7 +72,9 @@ inline SvgfParams volume_defaults() {
   p.firefly_up = 0.959f;
   p.normal_threshold = 180.f;
   p.depth_tolerance = 0.284f;
-  p.history_test = 2.f;
+  p.history_test = 0.5f;
+  p.adapt_strength = 0.f;
+  p.iterations = 3;
   p.phi_luminance = 2.5f;
   p.phi_depth = 3968.f;
   p.phi_normal = 180.f;
