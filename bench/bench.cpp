@@ -529,33 +529,23 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
   }
   if (j.contains("shafts")) {
     const auto& sh = j["shafts"];
-    const auto& c = sh["contrast_error_from_frame_4"];
-    if (!c.empty()) {
-      add("shafts contrast error f>=4", c["mean"],
-          fmt::format("sheet contrast of the denoised volume term / the reference's - 1, frames 4.. "
-                      "({:+.3f}..{:+.3f})",
-                      c["min"].get<double>(), c["max"].get<double>()));
-      rows.back()["min"] = c["min"];
-      rows.back()["max"] = c["max"];
-    }
-    const auto& cf = sh["contrast_error_accumulation_only_from_frame_4"];
-    if (!cf.empty()) {
-      add("shafts contrast error f>=4, accumulation only", cf["mean"],
-          fmt::format("the same with the volume instance reduced to its temporal accumulation: what the "
-                      "reprojection alone keeps ({:+.3f}..{:+.3f})",
-                      cf["min"].get<double>(), cf["max"].get<double>()));
-      rows.back()["min"] = cf["min"];
-      rows.back()["max"] = cf["max"];
-    }
-    for (const char* inst : {"surface", "volume"}) {
-      const auto& m = sh[fmt::format("mean_error_{}", inst)];
-      if (m.empty()) continue;
-      add(fmt::format("shafts mean error {}", inst), m["mean"],
-          fmt::format("denoised {} mean luminance / the reference's - 1, over frames ({:+.3f}..{:+.3f})",
-                      inst, m["min"].get<double>(), m["max"].get<double>()));
-      rows.back()["min"] = m["min"];
-      rows.back()["max"] = m["max"];
-    }
+    // A summary {mean, min, max} of the shaft sequence as a row with its range.
+    auto add_range = [&](const std::string& name, const json& r, const std::string& meaning) {
+      if (r.empty()) return;
+      add(name, r["mean"],
+          fmt::format("{} ({:+.3f}..{:+.3f})", meaning, r["min"].get<double>(), r["max"].get<double>()));
+      rows.back()["min"] = r["min"];
+      rows.back()["max"] = r["max"];
+    };
+    add_range("shafts contrast error f>=4", sh["contrast_error_from_frame_4"],
+              "sheet contrast of the denoised volume term / the reference's - 1, frames 4..");
+    add_range("shafts contrast error f>=4, accumulation only",
+              sh["contrast_error_accumulation_only_from_frame_4"],
+              "the same with the volume instance reduced to its temporal accumulation: what the reprojection "
+              "alone keeps");
+    for (const char* inst : {"surface", "volume"})
+      add_range(fmt::format("shafts mean error {}", inst), sh[fmt::format("mean_error_{}", inst)],
+                fmt::format("denoised {} mean luminance / the reference's - 1, over frames", inst));
     if (sh["temporal"]["volume"]["change_ratio"].is_number())
       add("shafts change ratio volume", sh["temporal"]["volume"]["change_ratio"],
           "frame-to-frame change of the denoised volume term / the reference's (1: no flicker, no lag)");

@@ -91,7 +91,9 @@ struct History {
   vec3 colour;
   float m1, m2, n;
   float m1_z;  // own geometry: m1 times the history's virtual point depth
-  float Y_w;   // the history test's witness: the luminance of the history or of the previous output there
+#ifdef SVGF_HISTORY_WITNESS
+  float Y_w;  // the history test's witness: the luminance of the previous output there
+#endif
 };
 
 History history_at(uint p, float weight) {
@@ -104,8 +106,6 @@ History history_at(uint p, float weight) {
   h.n = hist_moments[b + 2u] * weight;
 #ifdef SVGF_HISTORY_WITNESS
   h.Y_w = luminance(unpack_half4(prev_output[p]).rgb) * weight;
-#else
-  h.Y_w = luminance(h.colour);
 #endif
 #ifdef SVGF_OWN_GEOMETRY
   h.m1_z = h.m1 * prev_geo[p];
@@ -121,7 +121,9 @@ void add(INOUT(History) a, History b) {
   a.m2 += b.m2;
   a.n += b.n;
   a.m1_z += b.m1_z;
+#ifdef SVGF_HISTORY_WITNESS
   a.Y_w += b.Y_w;
+#endif
 }
 
 bool inside(ivec2 q) {
@@ -167,7 +169,10 @@ void main() {
   bool found = false;
   History h;
   h.colour = vec3(0.0f);
-  h.m1 = h.m2 = h.n = h.m1_z = h.Y_w = 0.0f;
+  h.m1 = h.m2 = h.n = h.m1_z = 0.0f;
+#ifdef SVGF_HISTORY_WITNESS
+  h.Y_w = 0.0f;
+#endif
   if (pc.has_history != 0u) {
     vec2 size = vec2(W, H);
     if (CLASSIC == 0u && (any(lessThan(q, vec2(0.0f))) || any(greaterThanEqual(q, size)))) {
@@ -296,7 +301,12 @@ void main() {
         // Sparse noise leaves many neighbourhoods all zero (no variance seen): the history's own sample
         // variance bounds the estimate from below.
         var_q = max(var_q, h.m2 - h.m1 * h.m1);
-        cap = mix(cap, 1.0f, history_test(h.Y_w, var_q / max(h.n, 1.0f), mean_n, var_q / k));
+#ifdef SVGF_HISTORY_WITNESS
+        const float Y_judged = h.Y_w;
+#else
+        const float Y_judged = Y_h;
+#endif
+        cap = mix(cap, 1.0f, history_test(Y_judged, var_q / max(h.n, 1.0f), mean_n, var_q / k));
       }
     }
     n = min(h.n + 1.0f, max(cap, 1.0f));
