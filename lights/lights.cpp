@@ -259,6 +259,8 @@ void Lights::fill(glsl::GpuScene& g) const {
   if (scene_.environment && !map_)
     g.env = glm::vec4(scene_.environment->color * scene_.environment->intensity, 0);
   g.sun_direction = glm::vec4(0, 1, 0, 1);  // cos 1: no visible disk
+  if (scene_.sun)
+    g.sun_direction = glm::vec4(glm::normalize(scene_.sun->direction), 1);  // the walk's sun lobe
   if (scene_.sun && scene_.sun->angular_diameter > 0.f) {
     const auto& sun = *scene_.sun;
     float cos_max = std::cos(glm::radians(sun.angular_diameter * 0.5f));

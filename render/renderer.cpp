@@ -231,6 +231,7 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   g.counts.w = s.render.seed ^ (frame * 0x9e3779b9u);
   g.settings = glm::vec4(s.render.equiangular_probability, s.render.rr_threshold,
                          s.render.pixel_jitter ? 1.f : 0.f, 0);
+  g.sun_walk = glm::vec4(s.render.sun_walk_probability, s.render.sun_walk_g, 0, 0);
   media_.fill(g);
   lights_.fill(g);
   surfaces_.fill(g);
@@ -278,6 +279,10 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   lights_.declare(t);
   if (s.render.max_depth > 1) t.define("HAZE_MULTI");
   if (s.render.estimator == "volpath") t.define("HAZE_VOLPATH");
+  // pbrt's walk samples the phase function alone; the default's mixes in a lobe towards the sun.
+  if (s.render.estimator == "default" && s.render.max_depth > 1 && s.lights.sun && media_.any() &&
+      s.render.sun_walk_probability > 0.f)
+    t.define("HAZE_SUN_WALK");
   // Walk rays (more than one event) reach the environment and emissive triangles, which NEE samples too.
   if (s.render.mis == "power" && s.render.max_depth > 1 && (lights_.has_environment() || lights_.has_area()))
     t.define("HAZE_MIS");

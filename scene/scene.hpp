@@ -155,6 +155,9 @@ struct RenderSettings {
   bool pixel_jitter = true;              // random position inside the pixel (off: pixel centres)
   float equiangular_probability = 0.5f;  // share of equi-angular sampling when point/spot lights exist
   float rr_threshold = 0.1f;             // Russian roulette on ratio-tracked transmittance below this
+  // The default estimator's walk in sunlit media: a lobe towards the sun mixed into phase sampling.
+  float sun_walk_probability = 0.2f;
+  float sun_walk_g = 0.6f;
   // "default": haze's estimator (docs/rendering.md); "volpath": pbrt-v4's VolPathIntegrator for grey media,
   // the baseline of the efficiency benchmark.
   std::string estimator = "default";
@@ -389,6 +392,11 @@ void reflect(V& v, RenderSettings& r) {
   v.field("rr_threshold", r.rr_threshold, Range{0, 1},
           "Russian roulette on ratio-tracked transmittance below this value (a shadow ray's on T times its "
           "contribution relative to the path's first vertex; 0: off)");
+  v.field("sun_walk_probability", r.sun_walk_probability, Range{0, 0.9},
+          "default estimator, multiple scattering under a sun: probability that a walk's direction at a "
+          "medium vertex is drawn from a lobe towards the sun instead of the phase function (0: off)");
+  v.field("sun_walk_g", r.sun_walk_g, Range{0, 0.95},
+          "Henyey-Greenstein g of the walk's sun lobe (sun_walk_probability)");
   v.field("estimator", r.estimator, Choices{"default", "volpath"},
           "default: haze's estimator; volpath: pbrt-v4's VolPathIntegrator (delta tracking, NEE at every "
           "collision), the efficiency benchmark's baseline");

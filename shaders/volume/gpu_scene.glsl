@@ -27,7 +27,7 @@ struct GpuScene {
   vec4 haze_min;       // xyz bounds, w: sigma_t
   vec4 haze_max;
   vec4 env;            // rgb radiance seen by camera rays that leave the scene
-  vec4 sun_direction;  // xyz towards the sun, w: cos of the half angle (1: no visible disk)
+  vec4 sun_direction;  // xyz towards the sun (any sun), w: cos of the half angle (1: no visible disk)
   vec4 sun_radiance;   // rgb radiance of the visible disk
   uvec4 maj_res;       // majorant grid resolution; w: max tracking steps per query
   vec4 maj_min;        // world bounds of the majorant grid
@@ -46,6 +46,8 @@ struct GpuScene {
   // Chromatic media (read by the CHROMATIC variant only): rgb the haze's sigma_t multipliers, w the largest
   // multiplier of any medium and channel (the majorants' factor).
   vec4 haze_sigma_t_color;
+  // The walk's sun lobe (read by the SUN_WALK variant only): x its probability at a medium vertex, y its g.
+  vec4 sun_walk;
 };
 
 // Per-pixel data lives in vec4 layers, one buffer each (gpu/pixel_layers.hpp), so that every buffer of a

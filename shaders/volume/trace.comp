@@ -227,6 +227,17 @@ float surface_epsilon(vec3 x) {
   return 1e-4f * max(1.0f, max(abs(x.x), max(abs(x.y), abs(x.z))));
 }
 
+// Solid-angle density of the walk's direction wi at a medium vertex reached along d: the phase function,
+// or with HAZE_SUN_WALK its mixture with the sun lobe (probability sun_walk.x, HG g sun_walk.y).
+float walk_phase_pdf(vec3 wi, vec3 d, float g) {
+#if HAZE_SUN_WALK
+  return mix(hg_phase(dot(wi, d), g), hg_phase(dot(wi, scene.sun_direction.xyz), scene.sun_walk.y),
+             scene.sun_walk.x);
+#else
+  return hg_phase(dot(wi, d), g);
+#endif
+}
+
 void main() {
   uvec2 pix = gl_GlobalInvocationID.xy;
   uint W = scene.size.x, H = scene.size.y;
@@ -626,9 +637,23 @@ void main() {
 #endif
           } else {
             vec3 d_in = d;
+#if HAZE_SUN_WALK
+            // A mixture of the phase function and a lobe towards the sun: in dense media the walk reaches
+            // the lit side in fewer events. The weight f / pdf stays below 1 / (1 - P).
+            bool to_sun = rng_next(rng) < scene.sun_walk.x;
+            d = hg_sample(to_sun ? scene.sun_direction.xyz : d_in, to_sun ? scene.sun_walk.y : g,
+                          vec2(rng_next(rng), rng_next(rng)));
+            float f = hg_phase(dot(d, d_in), g);
+            float pdf = walk_phase_pdf(d, d_in, g);
+            beta *= f / pdf;
+#if HAZE_MIS
+            p_walk = pdf;
+#endif
+#else
             d = hg_sample(d_in, g, vec2(rng_next(rng), rng_next(rng)));
 #if HAZE_MIS
             p_walk = hg_phase(dot(d, d_in), g);
+#endif
 #endif
           }
         }
@@ -775,9 +800,9 @@ void main() {
         // share is the complementary power-heuristic weight (delta lights and the sun keep 1).
         if (depth < max_depth && ls.pdf > 0.0f && light_reached_by_walks(ls.light)) {
 #if HAZE_SURFACES
-          float p_w = on_surface ? surface_cosine(n, ns, ls.wi) * INV_PI : hg_phase(dot(ls.wi, d), g);
+          float p_w = on_surface ? surface_cosine(n, ns, ls.wi) * INV_PI : walk_phase_pdf(ls.wi, d, g);
 #else
-          float p_w = hg_phase(dot(ls.wi, d), g);
+          float p_w = walk_phase_pdf(ls.wi, d, g);
 #endif
           pending *= mis_power(ls.pdf, p_w);
         }
