@@ -277,7 +277,10 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   media_.declare(t);
   lights_.declare(t);
   if (s.render.max_depth > 1) t.define("HAZE_MULTI");
-  if (s.render.estimator == "volpath") t.define("HAZE_VOLPATH");
+  if (s.render.estimator == "volpath")
+    t.define("HAZE_VOLPATH");
+  else
+    media_.declare_minorant(t);
   // Walk rays (more than one event) reach the environment and emissive triangles, which NEE samples too.
   if (s.render.mis == "power" && s.render.max_depth > 1 && (lights_.has_environment() || lights_.has_area()))
     t.define("HAZE_MIS");
