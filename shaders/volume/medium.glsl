@@ -390,6 +390,18 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
   float sigma_min = 0.0f;    // the minorant's control on this segment (all channels)
   float tau_control = 0.0f;  // the haze's optical depth (unscaled)
   float tau_min = 0.0f;      // the minorant's
+#if HAZE_MINORANT
+  // The roulette when T times the control's transmittance falls below rr, i.e. when the control's optical
+  // depth passes tau_rr = log(max T / rr): a comparison per segment, not an exp. Chromatic: the haze's
+  // smallest multiplier (T times the control's transmittance is at most that).
+#if HAZE_CHROMATIC
+  const float c_haze =
+      min(scene.haze_sigma_t_color.r, min(scene.haze_sigma_t_color.g, scene.haze_sigma_t_color.b));
+#else
+  const float c_haze = 1.0f;
+#endif
+  float tau_rr = log(1.0f / rr);
+#endif
   float t = t0;
   float tau_left = -log_one_minus(rng_next(rng));
   bool end_done = !eval_end;
@@ -414,12 +426,13 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
         tau_min += sigma_min * (tb - ta);
         // The roulette also at each segment: where the control alone takes T below rr (deep shadow rays),
         // the query ends before its next lookup.
-        if (control && trans_max(r.T * haze_transmittance(tau_control)) * exp(-tau_min) < rr) {
+        if (control && tau_min + c_haze * tau_control > tau_rr) {
           if (rng_next(rng) >= rr_survive) {
             killed = true;
             break;
           }
           r.T /= rr_survive;
+          tau_rr -= log(rr_survive);
         }
 #endif
       }
@@ -464,7 +477,8 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
 #if HAZE_MINORANT
       // The roulette sees the whole estimate, the control's transmittance so far included (on the residual's
       // T alone it comes later: more lookups than without the minorant).
-      if (trans_max(r.T * haze_transmittance(tau_control)) * exp(-tau_min) < rr) {
+      tau_rr = log(trans_max(r.T) / rr);
+      if (tau_min + c_haze * tau_control > tau_rr) {
 #else
       if (trans_max(r.T) < rr) {
 #endif
@@ -474,6 +488,9 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
           break;
         }
         r.T /= rr_survive;
+#if HAZE_MINORANT
+        tau_rr -= log(rr_survive);
+#endif
       }
     }
 #if HAZE_CHROMATIC
