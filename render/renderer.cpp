@@ -278,7 +278,10 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   media_.declare(t);
   lights_.declare(t);
   if (s.render.max_depth > 1) t.define("HAZE_MULTI");
-  if (s.render.estimator == "volpath") t.define("HAZE_VOLPATH");
+  if (s.render.estimator == "volpath")
+    t.define("HAZE_VOLPATH");
+  else
+    media_.declare_minorant(t);
   // pbrt's walk samples the phase function alone; the default's mixes in a lobe towards the sun.
   if (s.render.estimator == "default" && s.render.max_depth > 1 && s.lights.sun && media_.any() &&
       s.render.sun_walk_probability > 0.f)

@@ -484,9 +484,16 @@ struct Medium {
   glm::dvec3 clip_min{-1e300}, clip_max{1e300};  // zero outside
 };
 
-// sum over media of scale * trilinear density at world point p, against the majorant cell containing p.
+// sum over media of scale * trilinear density at world point p, against the majorant and minorant of the
+// cell containing p (of both cells where p lies on a face between them). tightest: the mean of sigma / max,
+// min_share: the mean of min / sigma, over the points where sigma > 0.
 void check_conservative(const std::vector<Medium>& media, const MajorantGrid& maj, int n_points,
-                        uint32_t seed, double* tightest = nullptr) {
+                        uint32_t seed, double* tightest = nullptr, double* min_share = nullptr) {
+  ASSERT_EQ(maj.sigma_min.size(), maj.sigma_max.size());
+  for (size_t i = 0; i < maj.sigma_min.size(); ++i) {
+    ASSERT_GE(maj.sigma_min[i], 0.f) << i;
+    ASSERT_LE(maj.sigma_min[i], maj.sigma_max[i]) << i;
+  }
   std::vector<Sampler> samplers;
   std::vector<glm::dmat4> w2i;
   for (const auto& m : media) {
@@ -497,12 +504,13 @@ void check_conservative(const std::vector<Medium>& media, const MajorantGrid& ma
   std::uniform_real_distribution<double> u(0, 1);
   glm::dvec3 lo(maj.world_min), ext = glm::dvec3(maj.world_max) - lo, cell = ext / glm::dvec3(maj.res);
   int failures = 0, inside = 0;
-  double ratio = 0;
+  double ratio = 0, share = 0;
   for (int i = 0; i < n_points; ++i) {
     glm::dvec3 p = lo + ext * glm::dvec3{u(rng), u(rng), u(rng)};
+    int snapped = -1;
     if (i % 4 == 0) {  // snap one coordinate onto a cell face, where neighbouring cells meet
-      int a = i / 4 % 3;
-      p[a] = lo[a] + cell[a] * std::round((p[a] - lo[a]) / cell[a]);
+      snapped = i / 4 % 3;
+      p[snapped] = lo[snapped] + cell[snapped] * std::round((p[snapped] - lo[snapped]) / cell[snapped]);
     }
     double sigma = 0;
     for (size_t k = 0; k < media.size(); ++k)
@@ -510,17 +518,30 @@ void check_conservative(const std::vector<Medium>& media, const MajorantGrid& ma
           glm::all(glm::lessThanEqual(p, media[k].clip_max)))
         sigma += media[k].scale * samplers[k].trilinear(glm::dvec3(w2i[k] * glm::dvec4(p, 1.0)));
     glm::ivec3 c = glm::clamp(glm::ivec3(glm::floor((p - lo) / cell)), glm::ivec3(0), maj.res - 1);
-    float m = maj.at(c);
+    float m = maj.at(c), mn = maj.min_at(c);
     if (sigma > m && ++failures < 10)
       ADD_FAILURE() << "sigma " << sigma << " > majorant " << m << " at " << p.x << " " << p.y << " " << p.z;
+    if (sigma < mn && ++failures < 10)
+      ADD_FAILURE() << "sigma " << sigma << " < minorant " << mn << " at " << p.x << " " << p.y << " " << p.z;
+    // On a face: the cell before it too (c is the one after, or the last cell on the grid's far face).
+    const int before = snapped >= 0 ? int(std::lround((p[snapped] - lo[snapped]) / cell[snapped])) - 1 : -1;
+    if (before >= 0 && before < maj.res[snapped]) {
+      glm::ivec3 b = c;
+      b[snapped] = before;
+      if ((sigma > maj.at(b) || sigma < maj.min_at(b)) && ++failures < 10)
+        ADD_FAILURE() << "sigma " << sigma << " outside [" << maj.min_at(b) << ", " << maj.at(b)
+                      << "] of the cell before the face at " << p.x << " " << p.y << " " << p.z;
+    }
     if (sigma > 0) {
       ++inside;
       ratio += sigma / m;
+      share += mn / sigma;
     }
   }
   EXPECT_EQ(failures, 0);
   EXPECT_GT(inside, n_points / 20);
   if (tightest) *tightest = ratio / std::max(inside, 1);
+  if (min_share) *min_share = share / std::max(inside, 1);
 }
 
 }  // namespace
@@ -554,8 +575,9 @@ TEST_F(VdbTest, MajorantConservativeUnderRotationAndScale) {
     int longest = std::max({maj.res.x, maj.res.y, maj.res.z});
     EXPECT_EQ(longest, res);
     ASSERT_EQ(maj.sigma_max.size(), size_t(maj.res.x) * maj.res.y * maj.res.z);
-    double tight = 0;
-    check_conservative(media, maj, res == 80 ? 40000 : 15000, 100 + res, &tight);
+    double tight = 0, share = 0;
+    check_conservative(media, maj, res == 80 ? 40000 : 15000, 100 + res, &tight, &share);
+    std::cout << "res " << res << ": sigma / majorant " << tight << ", minorant / sigma " << share << "\n";
     // The bound stays below the sum of both global maxima, and at fine resolution it is not absurdly loose.
     float top = *std::max_element(maj.sigma_max.begin(), maj.sigma_max.end());
     EXPECT_LE(top, (3.0 * 2.0 + 0.8 * 1.5) * 1.0001);
@@ -622,6 +644,18 @@ TEST_F(VdbTest, MajorantAxisAlignedBox) {
     EXPECT_GE(v, 1.f);
     EXPECT_LE(v, 1.0001f);
   }
+  // The minorant: 0.5 * 2 in the cells clear of the ramp to 0 over the outermost voxel, 0 in the shell.
+  for (int z = 0; z < 11; ++z)
+    for (int y = 0; y < 11; ++y)
+      for (int x = 0; x < 11; ++x) {
+        const glm::ivec3 c(x, y, z);
+        if (glm::any(glm::equal(c, glm::ivec3(0))) || glm::any(glm::equal(c, glm::ivec3(10)))) {
+          EXPECT_EQ(maj.min_at(c), 0.f) << x << " " << y << " " << z;
+        } else {
+          EXPECT_LE(maj.min_at(c), 1.f);
+          EXPECT_GE(maj.min_at(c), 0.9999f);
+        }
+      }
   check_conservative({{g, glm::dmat4(1), 0.5}}, maj, 5000, 5);
   EXPECT_EQ(build_majorant({}, 32).res, glm::ivec3(0));
   expect_vdb_error([&] { build_majorant({{&g, glm::dmat4(1), -1.0}}, 8); }, {"density scale"});

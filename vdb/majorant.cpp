@@ -21,8 +21,12 @@ const nanovdb::FloatGrid* as_grid(const void* aligned) {
 // Where a point on the GPU may land relative to the host's cell boxes (float rounding in the world-to-index
 // transform and in the DDA), in voxels.
 constexpr double kIndexSlack = 0.01;
-// Relative margin on majorant values so that float trilinear results never exceed them by an ulp.
+// Relative margin on majorant (minorant) values so that float trilinear results never exceed (fall below)
+// them by an ulp.
 constexpr double kValueMargin = 1e-5;
+// Where a point on the GPU may land outside its majorant cell (float rounding in the DDA), in cells: the
+// minorant counts a medium only in cells that lie inside its box with this margin.
+constexpr double kCellSlack = 1e-3;
 
 float round_up(double v) {
   float f = float(v);
@@ -32,56 +36,75 @@ float round_down(double v) {
   float f = float(v);
   return double(f) > v ? std::nextafter(f, -std::numeric_limits<float>::infinity()) : f;
 }
+// Two floats inward of v: the device's float box (round to nearest) lies outside it.
+double inward(double v, float dir) {
+  const float to = dir * std::numeric_limits<float>::infinity();
+  return std::nextafter(std::nextafter(dir > 0 ? round_up(v) : round_down(v), to), to);
+}
 
-// Max of every value (active or not) the sampler can read, per B^3 block of voxels over the index box [lo,
-// hi]. Starts at the background, which is what the tree returns where it has no node.
-struct BrickMax {
+// Max and min of every value (active or not) the sampler can read, per B^3 block of voxels over the index
+// box [lo, hi]. The max starts at the background, which is what the tree returns where it has no node; the
+// min takes the background only where some voxel of the block has no node (counted in `covered`).
+struct BrickBounds {
   glm::ivec3 lo, hi, dims;
   int B;
-  std::vector<float> v;
+  std::vector<float> vmax, vmin;
+  float bg;
 
-  BrickMax(const nanovdb::FloatGrid& grid, glm::ivec3 lo_, glm::ivec3 hi_, int B_) : lo(lo_), hi(hi_), B(B_) {
+  BrickBounds(const nanovdb::FloatGrid& grid, glm::ivec3 lo_, glm::ivec3 hi_, int B_)
+      : lo(lo_), hi(hi_), B(B_) {
     dims = (hi - lo) / B + 1;
-    const float bg = grid.tree().background();
-    v.assign(size_t(dims.x) * dims.y * dims.z, bg);
+    bg = grid.tree().background();
+    const size_t n = size_t(dims.x) * dims.y * dims.z;
+    vmax.assign(n, bg);
+    vmin.assign(n, std::numeric_limits<float>::infinity());
+    covered.assign(n, 0);
     // Walk the tree by hand: in NanoVDB 10.0 the node iterators' getOrigin() is broken (the root's lacks a
     // return, the internal nodes' does not compile), and RootNode hides its tiles (use data()).
     const auto* root = grid.tree().root().data();
     for (uint32_t n = 0; n < root->mTableSize; ++n) {
       const auto* tile = root->tile(n);
       if (tile->isValue())
-        add_box(tile->origin(), 4096, tile->value, bg);
+        add_box(tile->origin(), 4096, tile->value);
       else
-        visit(*root->getChild(tile), bg);
+        visit(*root->getChild(tile));
     }
+    for (int z = 0; z < dims.z; ++z)
+      for (int y = 0; y < dims.y; ++y)
+        for (int x = 0; x < dims.x; ++x) {
+          const glm::ivec3 b(x, y, z);
+          const glm::ivec3 a = lo + b * B, e = glm::min(a + (B - 1), hi);
+          const glm::u64vec3 span(e - a + 1);
+          if (covered[index(b)] < span.x * span.y * span.z) vmin[index(b)] = std::min(vmin[index(b)], bg);
+        }
   }
 
   template <typename NodeT>
-  void visit(const NodeT& node, float bg) {
+  void visit(const NodeT& node) {
     if (!intersects(node.origin(), int(NodeT::DIM))) return;
     if constexpr (NodeT::LEVEL == 0) {
       nanovdb::Coord o = node.origin();
       for (uint32_t i = 0; i < NodeT::SIZE; ++i) {
-        float x = node.getValue(i);
-        if (!(x > bg)) continue;
         glm::ivec3 c(o[0] + int(i >> 6), o[1] + int((i >> 3) & 7), o[2] + int(i & 7));
         if (glm::any(glm::lessThan(c, lo)) || glm::any(glm::greaterThan(c, hi))) continue;
-        float& m = at((c - lo) / B);
-        m = std::max(m, x);
+        const float x = node.getValue(i);
+        const size_t k = index((c - lo) / B);
+        vmax[k] = std::max(vmax[k], x);
+        vmin[k] = std::min(vmin[k], x);
+        covered[k] += 1;
       }
     } else {
       const auto* data = node.data();
       for (uint32_t n = 0; n < NodeT::SIZE; ++n) {
         if (data->mChildMask.isOn(n))
-          visit(*data->getChild(n), bg);
+          visit(*data->getChild(n));
         else
-          add_box(node.offsetToGlobalCoord(n), int(NodeT::ChildNodeType::DIM), data->getValue(n), bg);
+          add_box(node.offsetToGlobalCoord(n), int(NodeT::ChildNodeType::DIM), data->getValue(n));
       }
     }
   }
 
-  float& at(glm::ivec3 b) { return v[(size_t(b.z) * dims.y + b.y) * dims.x + b.x]; }
-  float at(glm::ivec3 b) const { return v[(size_t(b.z) * dims.y + b.y) * dims.x + b.x]; }
+  size_t index(glm::ivec3 b) const { return (size_t(b.z) * dims.y + b.y) * dims.x + b.x; }
 
   bool intersects(nanovdb::Coord o, int dim) const {
     glm::ivec3 a(o[0], o[1], o[2]);
@@ -89,33 +112,47 @@ struct BrickMax {
   }
 
   // A tile of value x covering [o, o + dim).
-  void add_box(nanovdb::Coord o, int dim, float x, float bg) {
-    if (!(x > bg) || !intersects(o, dim)) return;
+  void add_box(nanovdb::Coord o, int dim, float x) {
+    if (!intersects(o, dim)) return;
     glm::ivec3 a = glm::max(glm::ivec3(o[0], o[1], o[2]), lo),
                b = glm::min(glm::ivec3(o[0], o[1], o[2]) + (dim - 1), hi);
     glm::ivec3 ba = (a - lo) / B, bb = (b - lo) / B;
     for (int z = ba.z; z <= bb.z; ++z)
       for (int y = ba.y; y <= bb.y; ++y)
         for (int xx = ba.x; xx <= bb.x; ++xx) {
-          float& m = at({xx, y, z});
-          m = std::max(m, x);
+          const glm::ivec3 br(xx, y, z);
+          const glm::ivec3 ca = glm::max(a, lo + br * B), cb = glm::min(b, lo + br * B + (B - 1));
+          const glm::u64vec3 span(cb - ca + 1);
+          const size_t k = index(br);
+          vmax[k] = std::max(vmax[k], x);
+          vmin[k] = std::min(vmin[k], x);
+          covered[k] += span.x * span.y * span.z;
         }
   }
 
-  // Max over the voxels [a, b] clipped to the box; -inf when they miss it.
-  float query(glm::ivec3 a, glm::ivec3 b) const {
+  // Max and min over the voxels [a, b]. The max is over the part inside the box (-inf when none is); the
+  // min takes the background where [a, b] reaches outside it.
+  void query(glm::ivec3 a, glm::ivec3 b, float& mx, float& mn) const {
+    mx = -std::numeric_limits<float>::infinity();
+    mn = glm::any(glm::lessThan(a, lo)) || glm::any(glm::greaterThan(b, hi))
+             ? bg
+             : std::numeric_limits<float>::infinity();
     a = glm::max(a, lo);
     b = glm::min(b, hi);
-    if (glm::any(glm::greaterThan(a, b))) return -std::numeric_limits<float>::infinity();
+    if (glm::any(glm::greaterThan(a, b))) return;
     glm::ivec3 ba = (a - lo) / B, bb = (b - lo) / B;
-    float m = -std::numeric_limits<float>::infinity();
     for (int z = ba.z; z <= bb.z; ++z)
       for (int y = ba.y; y <= bb.y; ++y) {
-        const float* row = &v[(size_t(z) * dims.y + y) * dims.x];
-        for (int x = ba.x; x <= bb.x; ++x) m = std::max(m, row[x]);
+        const size_t row = index({0, y, z});
+        for (int x = ba.x; x <= bb.x; ++x) {
+          mx = std::max(mx, vmax[row + x]);
+          mn = std::min(mn, vmin[row + x]);
+        }
       }
-    return m;
   }
+
+ private:
+  std::vector<uint64_t> covered;  // voxels of the block some node (leaf voxel or tile) holds
 };
 
 }  // namespace
@@ -209,7 +246,7 @@ MajorantGrid build_majorant(const std::vector<MajorantInput>& media, int resolut
   for (int a = 0; a < 3; ++a) out.res[a] = std::max(1, int(std::lround(resolution * ext[a] / longest)));
   glm::dvec3 cell = ext / glm::dvec3(out.res);
   const size_t ncells = size_t(out.res.x) * out.res.y * out.res.z;
-  std::vector<double> acc(ncells, 0.0);
+  std::vector<double> acc(ncells, 0.0), acc_min(ncells, 0.0);
 
   for (const Medium& m : ms) {
     if (m.scale == 0) continue;
@@ -226,8 +263,14 @@ MajorantGrid build_majorant(const std::vector<MajorantInput>& media, int resolut
     glm::dvec3 span = glm::dvec3(m.hi - m.lo + 1);
     while (B < 4096 && (span.x / B + 1) * (span.y / B + 1) * (span.z / B + 1) > double(1 << 24)) B *= 2;
     Sampler sampler(*m.g);
-    const BrickMax bricks(*as_grid(sampler.aligned_buffer()), m.lo, m.hi, B);
+    const BrickBounds bricks(*as_grid(sampler.aligned_buffer()), m.lo, m.hi, B);
 
+    // Where the medium is nonzero at most; a cell counts towards the minorant only inside it.
+    glm::dvec3 inner_min, inner_max;
+    for (int a = 0; a < 3; ++a) {
+      inner_min[a] = inward(m.wmin[a], 1);
+      inner_max[a] = inward(m.wmax[a], -1);
+    }
     // Cells that can overlap the medium's world box.
     glm::ivec3 c0 = glm::clamp(glm::ivec3(glm::floor((m.wmin - lo) / cell)) - 1, glm::ivec3(0), out.res - 1);
     glm::ivec3 c1 = glm::clamp(glm::ivec3(glm::floor((m.wmax - lo) / cell)) + 1, glm::ivec3(0), out.res - 1);
@@ -253,14 +296,25 @@ MajorantGrid build_majorant(const std::vector<MajorantInput>& media, int resolut
             a = glm::clamp(a - kIndexSlack, blo, bhi);
             b = glm::clamp(b + kIndexSlack, blo, bhi);
             glm::ivec3 va(glm::floor(a)), vb = glm::ivec3(glm::floor(b)) + 1;
-            float mx = bricks.query(va, vb);
-            if (mx > 0) acc[(size_t(z) * out.res.y + y) * out.res.x + x] += m.scale * double(mx);
+            float mx, mn;
+            bricks.query(va, vb, mx, mn);
+            const size_t k = (size_t(z) * out.res.y + y) * out.res.x + x;
+            if (mx > 0) acc[k] += m.scale * double(mx);
+            // The shader counts negative values as 0 and nothing outside the medium's box.
+            const glm::dvec3 c0w = lo + cell * (glm::dvec3(x, y, z) - kCellSlack),
+                             c1w = lo + cell * (glm::dvec3(x + 1, y + 1, z + 1) + kCellSlack);
+            const bool inside = glm::all(glm::greaterThanEqual(c0w, inner_min)) &&
+                                glm::all(glm::lessThanEqual(c1w, inner_max));
+            if (inside && mn > 0) acc_min[k] += m.scale * double(mn);
           }
     });
   }
   out.sigma_max.resize(ncells);
   for (size_t i = 0; i < ncells; ++i)
     out.sigma_max[i] = acc[i] > 0 ? round_up(acc[i] * (1 + kValueMargin)) : 0.f;
+  out.sigma_min.resize(ncells);
+  for (size_t i = 0; i < ncells; ++i)
+    out.sigma_min[i] = acc_min[i] > 0 ? round_down(acc_min[i] * (1 - kValueMargin)) : 0.f;
   return out;
 }
 

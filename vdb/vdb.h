@@ -137,11 +137,12 @@ struct VoxelGrid {
 // Writes the grids to one .vdb file (to a temporary file, read back, then renamed).
 void write_grids(const std::vector<VoxelGrid>& grids, const std::string& out_path);
 
-// World-space majorant grid over several media. Conservative for trilinear interpolation at voxel centres:
-// each cell holds >= scale * max of every voxel (active or not) whose trilinear support (+-1 voxel) overlaps
-// the cell, summed over media. Each medium is taken to be zero outside its index bbox dilated by one voxel
-// and outside its clip box (the renderer clips media to both). Values carry a 1e-5 relative margin for float
-// rounding.
+// World-space majorant and minorant grid over several media. Conservative for trilinear interpolation at
+// voxel centres: each cell holds >= scale * max (<= scale * min) of every voxel (active or not) whose
+// trilinear support (+-1 voxel) overlaps the cell, summed over media; the min takes the background where
+// the tree has no node, counts negative values as 0, and counts a medium only in cells inside its box. Each
+// medium is taken to be zero outside its index bbox dilated by one voxel and outside its clip box (the
+// renderer clips media to both). Values carry a 1e-5 relative margin for float rounding.
 struct MajorantInput {
   const DeviceGrid* grid;
   glm::dmat4 object_to_world;
@@ -154,8 +155,10 @@ struct MajorantGrid {
   glm::vec3 world_min{0},
       world_max{0};              // union of the media's world bboxes (index bbox dilated by one voxel)
   std::vector<float> sigma_max;  // res.x*res.y*res.z, x fastest
+  std::vector<float> sigma_min;  // the same cells' minorant (the control of residual ratio tracking)
   glm::vec3 cell_size() const { return (world_max - world_min) / glm::vec3(glm::max(res, glm::ivec3(1))); }
   float at(glm::ivec3 c) const { return sigma_max[(size_t(c.z) * res.y + c.y) * res.x + c.x]; }
+  float min_at(glm::ivec3 c) const { return sigma_min[(size_t(c.z) * res.y + c.y) * res.x + c.x]; }
 };
 // `resolution` = cells along the longest axis (others proportional, >= 1; cells need not be cubes).
 // Empty input -> res 0. Throws Error for resolution < 1 or a negative/non-finite density_scale.

@@ -271,10 +271,19 @@ void Media::update(const scene::Scene& s) {
   if (haze_) add_color(s.haze->sigma_t_color);
   for (const auto& m : s.media) add_color(m.sigma_t_color);
   if (!chromatic_) color_max_ = 1.f;
+  // The minorant's control holds in every channel at the grid media's smallest multiplier.
+  color_min_ = 1.f;
+  for (const auto& m : s.media)
+    color_min_ = std::min({color_min_, m.sigma_t_color.x, m.sigma_t_color.y, m.sigma_t_color.z});
+  if (!chromatic_) color_min_ = 1.f;
   grids_.update(ctx_, host_, hetero_);
   gpu::keep_uploaded(ctx_, table_, hetero_, "media", "scene data", host_.media, "GpuMedium");
   const auto& maj = host_.majorant;
   gpu::keep_uploaded(ctx_, majorant_, hetero_, "majorant grid", "scene data", maj.sigma_max,
+                     fmt::format("f32 {}x{}x{}", maj.res.x, maj.res.y, maj.res.z));
+  // Only the default estimator's ratio tracking reads the minorant (volpath is pbrt's plain tracking).
+  gpu::keep_uploaded(ctx_, minorant_, hetero_ && s.render.estimator != "volpath", "minorant grid",
+                     "scene data", maj.sigma_min,
                      fmt::format("f32 {}x{}x{}", maj.res.x, maj.res.y, maj.res.z));
 }
 
@@ -304,11 +313,18 @@ void Media::declare(gpu::KernelDecl& k) const {
   k.buffer("majorant", majorant_.size(), 4);
 }
 
+void Media::declare_minorant(gpu::KernelDecl& k) const {
+  if (!minorant_.valid()) return;
+  k.define("HAZE_MINORANT");
+  k.buffer("minorant", minorant_.size(), 4);
+}
+
 void Media::bind(gpu::Bindings& b) const {
   if (!hetero_) return;
   b.set("grids", grids_.table());
   b.set("media", table_);
   b.set("majorant", majorant_);
+  if (minorant_.valid()) b.set("minorant", minorant_);
 }
 
 void Media::fill(glsl::GpuScene& g) const {
@@ -324,7 +340,7 @@ void Media::fill(glsl::GpuScene& g) const {
   }
   g.haze_sigma_t_color.w = color_max_;
   g.maj_res = glm::uvec4(glm::max(host_.majorant.res, glm::ivec3(0)), kMaxTrackingSteps);
-  g.maj_min = glm::vec4(host_.majorant.world_min, 0);
+  g.maj_min = glm::vec4(host_.majorant.world_min, color_min_);
   g.maj_max = glm::vec4(host_.majorant.world_max, 0);
 }
 

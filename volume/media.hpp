@@ -73,7 +73,8 @@ class DeviceGrids {
 
 // The media on the device. Features: HAZE_HETERO (VDB media: the grid table, media table, majorant grid),
 // HAZE_HAZE (homogeneous haze, in the scene block only), HAZE_EMISSION (an emitting VDB medium),
-// HAZE_CHROMATIC (some medium's sigma_t_color is not [1, 1, 1]: per-channel extinction). Every
+// HAZE_CHROMATIC (some medium's sigma_t_color is not [1, 1, 1]: per-channel extinction), and for the default
+// estimator's tracking kernel HAZE_MINORANT (the minorant grid, declare_minorant). Every
 // NanoVDB grid is a buffer of its own, read through its device address (DeviceGrids), so the grids
 // together may exceed maxStorageBufferRange. How the media moved since the previous frame (transforms and
 // velocity grids) is the volume motion pass's input (guiding/volume_motion.hpp), kept only while wanted.
@@ -103,6 +104,9 @@ class Media : public gpu::DeviceData {
   std::vector<std::string> notes() const;  // the media's and the velocity grids'
 
   void declare(gpu::KernelDecl& k) const override;
+  // HAZE_MINORANT and the minorant grid, for the kernel whose ratio tracking takes it as its control; nothing
+  // unless the scene's estimator is the default one and it has VDB media.
+  void declare_minorant(gpu::KernelDecl& k) const;
   void bind(gpu::Bindings& b) const override;
   // counts.x, the haze, the majorant grid's bounds and resolution, the tracking step cap.
   void fill(glsl::GpuScene& g) const;
@@ -113,10 +117,11 @@ class Media : public gpu::DeviceData {
   bool hetero_ = false, haze_ = false, emission_ = false;
   bool chromatic_ = false;  // HAZE_CHROMATIC: some medium's sigma_t_color is not [1, 1, 1]
   float color_max_ = 1.f;   // the largest multiplier over media and channels
+  float color_min_ = 1.f;   // the smallest over the VDB media's channels
   std::optional<scene::Haze> haze_params_;
   DeviceVelocity velocity_;
   DeviceGrids grids_, velocity_grids_;
-  gpu::Buffer table_, majorant_, motion_;
+  gpu::Buffer table_, majorant_, minorant_, motion_;
   uint32_t moving_ = 0;
 };
 

@@ -30,7 +30,7 @@ struct GpuScene {
   vec4 sun_direction;  // xyz towards the sun (any sun), w: cos of the half angle (1: no visible disk)
   vec4 sun_radiance;   // rgb radiance of the visible disk
   uvec4 maj_res;       // majorant grid resolution; w: max tracking steps per query
-  vec4 maj_min;        // world bounds of the majorant grid
+  vec4 maj_min;        // world bounds of the majorant grid; w: the VDB media's smallest sigma_t multiplier
   vec4 maj_max;
   vec4 settings;  // x: equi-angular probability, y: Russian roulette threshold, z: pixel jitter (0/1)
   vec4 prev_cam_position;  // the previous frame's camera, for motion vectors

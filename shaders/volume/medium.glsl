@@ -1,7 +1,8 @@
 // The medium seen by the tracker: sigma_t at a point (with the stochastic choice of the scattering
 // component), the piecewise-constant majorant along a ray, and ratio/delta tracking on top of them.
 // Reads the scene block and, with HAZE_HETERO, the bindings "grids" (every grid's device address, read by
-// PNanoVDB: volume/grids.glsl), "media" and "majorant" (volume/media.hpp).
+// PNanoVDB: volume/grids.glsl), "media" and "majorant" (volume/media.hpp); with HAZE_MINORANT (the default
+// estimator's tracking kernel) "minorant" too.
 #ifndef HAZE_MEDIUM_GLSL
 #define HAZE_MEDIUM_GLSL
 
@@ -12,6 +13,11 @@ layout(std430, binding = BINDING_media) readonly buffer MediaBuffer {
 };
 layout(std430, binding = BINDING_majorant) readonly buffer MajorantBuffer {
   float majorant[];
+};
+#endif
+#if HAZE_MINORANT
+layout(std430, binding = BINDING_minorant) readonly buffer MinorantBuffer {
+  float minorant[];
 };
 #endif
 
@@ -165,6 +171,7 @@ struct MajorantIter {
   float h0, h1;  // haze interval
   float g0, g1;  // majorant-grid interval
   bool dda_started;
+  float sigma_min;  // HAZE_MINORANT: the minorant of the segment maj_next returned last (0 outside the grid)
   ivec3 cell;
   ivec3 step;
   vec3 t_max, t_delta;
@@ -195,6 +202,7 @@ MajorantIter maj_init(vec3 o, vec3 d, float t0, float t1) {
   }
 #endif
   it.dda_started = false;
+  it.sigma_min = 0.0f;
   it.cell = ivec3(0);
   it.step = ivec3(0);
   it.t_max = vec3(0.0f);
@@ -207,6 +215,7 @@ bool maj_next(INOUT(MajorantIter) it, OUT(float) sigma_het, OUT(float) sigma_haz
               OUT(float) t_b) {
   sigma_het = 0.0f;
   sigma_haze = 0.0f;
+  it.sigma_min = 0.0f;
   t_a = it.t;
   t_b = it.t1;
   if (!(it.t < it.t1)) return false;
@@ -242,6 +251,9 @@ bool maj_next(INOUT(MajorantIter) it, OUT(float) sigma_het, OUT(float) sigma_haz
     }
     ivec3 r = ivec3(scene.maj_res.xyz);
     sigma_het = majorant[(it.cell.z * r.y + it.cell.y) * r.x + it.cell.x];
+#if HAZE_MINORANT
+    it.sigma_min = minorant[(it.cell.z * r.y + it.cell.y) * r.x + it.cell.x];
+#endif
     float t_exit = max(min(min(it.t_max.x, it.t_max.y), it.t_max.z), t_a);
     t_exit = min(t_exit, it.g1);
     if (t_exit <= t_b) {
@@ -318,6 +330,10 @@ struct TrackResult {
 HAZE_INLINE bool above_majorant(float sigma, float sigma_maj) {
   return sigma > sigma_maj * 1.00001f;
 }
+// sigma below the minorant sigma_min by more than the same rounding.
+HAZE_INLINE bool below_minorant(float sigma, float sigma_min) {
+  return sigma < sigma_min * 0.99999f;
+}
 
 #if HAZE_CHROMATIC
 // Spectral tracking (Kutz et al. 2017) at a tentative collision of delta tracking in chromatic media: real
@@ -343,9 +359,11 @@ bool spectral_collision(INOUT(vec3) W, MediumSample ms, float sigma_maj, INOUT(u
 }
 #endif
 
-// Ratio tracking (default estimator) uses the haze as a control: its transmittance is taken in closed form
-// and only the heterogeneous residual is tracked (Novak et al. 2014). Each loop iteration does at most one
-// lookup. rr, rr_survive: Russian roulette on T below rr, surviving with rr_survive.
+// Ratio tracking (default estimator) is residual ratio tracking (Novak et al. 2014): the control, the haze
+// and with HAZE_MINORANT the minorant grid's sigma_min per segment, is taken in closed form and only the
+// residual sigma_t - control is tracked, under the residual majorant sigma_maj - sigma_min (a segment where
+// both bounds meet needs no lookup). Each loop iteration does at most one lookup. rr, rr_survive: Russian
+// roulette on T below rr, surviving with rr_survive.
 TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, float rr, float rr_survive,
                   INOUT(uint) rng) {
   TrackResult r;
@@ -369,14 +387,28 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
   MajorantIter it = maj_init(o, d, t0, t1);
   float s_het = 0.0f, s_haze = 0.0f, ta = t0, tb = t0;
   float sigma_maj = 0.0f;
-  float tau_control = 0.0f;
+  float sigma_min = 0.0f;    // the minorant's control on this segment (all channels)
+  float tau_control = 0.0f;  // the haze's optical depth (unscaled)
+  float tau_min = 0.0f;      // the minorant's
+#if HAZE_MINORANT
+  // The roulette when T times the control's transmittance falls below rr, i.e. when the control's optical
+  // depth passes tau_rr = log(max T / rr): a comparison per segment, not an exp. Chromatic: the haze's
+  // smallest multiplier (T times the control's transmittance is at most that).
+#if HAZE_CHROMATIC
+  const float c_haze =
+      min(scene.haze_sigma_t_color.r, min(scene.haze_sigma_t_color.g, scene.haze_sigma_t_color.b));
+#else
+  const float c_haze = 1.0f;
+#endif
+  float tau_rr = log(1.0f / rr);
+#endif
   float t = t0;
   float tau_left = -log_one_minus(rng_next(rng));
   bool end_done = !eval_end;
   uint steps = 0u;
   for (;;) {
     // Advance over segments (no lookups) until the next tentative collision or the end.
-    bool found = false;
+    bool found = false, killed = false;
     for (;;) {
       if (!(t < tb)) {
         if (!maj_next(it, s_het, s_haze, ta, tb)) break;
@@ -387,6 +419,22 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
         sigma_maj *= scene.haze_sigma_t_color.w;
 #endif
         if (control) tau_control += s_haze * (tb - ta);
+#if HAZE_MINORANT
+        // In every channel sigma_c >= the smallest multiplier times sigma_t of the grids.
+        sigma_min = control ? it.sigma_min * scene.maj_min.w : 0.0f;
+        sigma_maj = max(sigma_maj - sigma_min, 0.0f);
+        tau_min += sigma_min * (tb - ta);
+        // The roulette also at each segment: where the control alone takes T below rr (deep shadow rays),
+        // the query ends before its next lookup.
+        if (control && tau_min + c_haze * tau_control > tau_rr) {
+          if (rng_next(rng) >= rr_survive) {
+            killed = true;
+            break;
+          }
+          r.T /= rr_survive;
+          tau_rr -= log(rr_survive);
+        }
+#endif
       }
       float dt = tb - t;
       if (sigma_maj * dt > tau_left) {
@@ -397,19 +445,27 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
       tau_left -= sigma_maj * dt;
       t = tb;
     }
+    if (killed) {
+      r.T = Trans(0.0f);
+      break;
+    }
     if (!found && end_done) break;
     bool at_end = !found;
     vec3 x = o + d * (at_end ? t1 : t);
     MediumSample ms = sample_medium(x, rng_next(rng));
     r.lookups += 1u;
-    // The part of sigma_t this query's majorant bounds (the control is exact).
+    // The part of sigma_t this query's majorant bounds (the haze's control is exact); checked against both
+    // bounds before the minorant's control is taken off.
 #if HAZE_CHROMATIC
     vec3 sigma = control ? ms.sigma_c - ms.sigma_control * scene.haze_sigma_t_color.rgb : ms.sigma_c;
-    r.violated = r.violated || above_majorant(trans_max(sigma), sigma_maj);
+    r.violated = r.violated || above_majorant(trans_max(sigma), sigma_maj + sigma_min) ||
+                 below_minorant(min(sigma.x, min(sigma.y, sigma.z)), sigma_min);
 #else
     float sigma = control ? ms.sigma_t - ms.sigma_control : ms.sigma_t;
-    r.violated = r.violated || above_majorant(sigma, sigma_maj);
+    r.violated =
+        r.violated || above_majorant(sigma, sigma_maj + sigma_min) || below_minorant(sigma, sigma_min);
 #endif
+    sigma -= sigma_min;
     if (at_end) {
       r.ms = ms;
       break;
@@ -418,13 +474,23 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
       // pbrt-v4 clamps the null-collision weight at 0 too; a violation is counted above.
       // Chromatic: ratio tracking per channel under the common majorant.
       r.T *= clamp(Trans(1.0f) - sigma / sigma_maj, 0.0f, 1.0f);
+#if HAZE_MINORANT
+      // The roulette sees the whole estimate, the control's transmittance so far included (on the residual's
+      // T alone it comes later: more lookups than without the minorant).
+      tau_rr = log(trans_max(r.T) / rr);
+      if (tau_min + c_haze * tau_control > tau_rr) {
+#else
       if (trans_max(r.T) < rr) {
+#endif
         // Russian roulette keeps the estimate unbiased while bounding the walk.
         if (rng_next(rng) >= rr_survive) {
           r.T = Trans(0.0f);
           break;
         }
         r.T /= rr_survive;
+#if HAZE_MINORANT
+        tau_rr -= log(rr_survive);
+#endif
       }
     }
 #if HAZE_CHROMATIC
@@ -450,7 +516,7 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
       break;
     }
   }
-  if (control) r.T *= haze_transmittance(tau_control);
+  if (control) r.T *= haze_transmittance(tau_control) * exp(-tau_min);
   return r;
 }
 
