@@ -317,6 +317,9 @@ void Media::declare_minorant(gpu::KernelDecl& k) const {
   if (!minorant_.valid()) return;
   k.define("HAZE_MINORANT");
   k.buffer("minorant", minorant_.size(), 4);
+  // Delta tracking skips the lookup of collisions under the control when a collision needs no more than
+  // constants: one grid medium, grey, without emission.
+  if (host_.media.size() == 1 && !emission_ && !chromatic_) k.define("HAZE_DECOMPOSITION");
 }
 
 void Media::bind(gpu::Bindings& b) const {

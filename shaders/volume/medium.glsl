@@ -359,6 +359,19 @@ bool spectral_collision(INOUT(vec3) W, MediumSample ms, float sigma_maj, INOUT(u
 }
 #endif
 
+#if HAZE_DECOMPOSITION
+// A collision with the scene's one grid medium (grey, without emission): constants, no lookup.
+MediumSample grid_medium_collision() {
+  MediumSample ms;
+  ms.sigma_t = 0.0f;  // not read after a delta-tracked collision
+  ms.sigma_control = 0.0f;
+  ms.albedo = media[0].albedo_g.rgb;
+  ms.g = media[0].albedo_g.w;
+  ms.emit = vec3(0.0f);
+  return ms;
+}
+#endif
+
 // Ratio tracking (default estimator) is residual ratio tracking (Novak et al. 2014): the control, the haze
 // and with HAZE_MINORANT the minorant grid's sigma_min per segment, is taken in closed form and only the
 // residual sigma_t - control is tracked, under the residual majorant sigma_maj - sigma_min (a segment where
@@ -452,6 +465,22 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
     if (!found && end_done) break;
     bool at_end = !found;
     vec3 x = o + d * (at_end ? t1 : t);
+#if HAZE_DECOMPOSITION
+    // Delta tracking as decomposition tracking (Kutz et al. 2017): a tentative collision is real with
+    // probability sigma_t / sigma_maj either way, but where the uniform falls under the control (the haze and
+    // the cell's minorant) it is real whatever the density: no lookup. The one grey medium has no emission,
+    // so its albedo and g are all a collision needs.
+    float u_delta = 0.0f;
+    if (mode == TRACK_DELTA && !at_end) {
+      u_delta = rng_next(rng) * sigma_maj;
+      if (u_delta < s_haze + it.sigma_min) {
+        r.hit = true;
+        r.t = t;
+        r.ms = u_delta < s_haze ? haze_at(x) : grid_medium_collision();
+        break;
+      }
+    }
+#endif
     MediumSample ms = sample_medium(x, rng_next(rng));
     r.lookups += 1u;
     // The part of sigma_t this query's majorant bounds (the haze's control is exact); checked against both
@@ -495,8 +524,13 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
     }
 #if HAZE_CHROMATIC
     else if (spectral_collision(r.T, ms, sigma_maj, rng)) {
+#elif HAZE_DECOMPOSITION
+    else if (u_delta < ms.sigma_t) {
+      // Above the control: the collision is the residual's, the grid medium's (the haze is all control).
+      r.violated = r.violated || below_minorant(ms.sigma_t - s_haze, it.sigma_min);
+      ms = grid_medium_collision();
 #else
-    else if (rng_next(rng) * sigma_maj < ms.sigma_t) {
+  else if (rng_next(rng) * sigma_maj < ms.sigma_t) {
 #endif
       r.hit = true;
       r.t = t;
