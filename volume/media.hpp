@@ -74,8 +74,9 @@ class DeviceGrids {
 // The media on the device. Features: HAZE_HETERO (VDB media: the grid table, media table, majorant grid),
 // HAZE_HAZE (homogeneous haze, in the scene block only), HAZE_EMISSION (an emitting VDB medium),
 // HAZE_CHROMATIC (some medium's sigma_t_color is not [1, 1, 1]: per-channel extinction), and for the default
-// estimator's tracking kernel HAZE_MINORANT (the minorant grid, declare_minorant). Every
-// NanoVDB grid is a buffer of its own, read through its device address (DeviceGrids), so the grids
+// estimator's tracking kernel HAZE_MINORANT (the minorant grid, declare_minorant) and, with one grey VDB
+// medium without emission, HAZE_DECOMPOSITION (delta tracking's collisions under the control need no lookup).
+// Every NanoVDB grid is a buffer of its own, read through its device address (DeviceGrids), so the grids
 // together may exceed maxStorageBufferRange. How the media moved since the previous frame (transforms and
 // velocity grids) is the volume motion pass's input (guiding/volume_motion.hpp), kept only while wanted.
 class Media : public gpu::DeviceData {
@@ -104,8 +105,9 @@ class Media : public gpu::DeviceData {
   std::vector<std::string> notes() const;  // the media's and the velocity grids'
 
   void declare(gpu::KernelDecl& k) const override;
-  // HAZE_MINORANT and the minorant grid, for the kernel whose ratio tracking takes it as its control; nothing
-  // unless the scene's estimator is the default one and it has VDB media.
+  // HAZE_MINORANT and the minorant grid, for the kernel whose tracking takes it as its control (and
+  // HAZE_DECOMPOSITION where a collision needs only constants); nothing unless the scene's estimator is the
+  // default one and it has VDB media.
   void declare_minorant(gpu::KernelDecl& k) const;
   void bind(gpu::Bindings& b) const override;
   // counts.x, the haze, the majorant grid's bounds and resolution, the tracking step cap.
