@@ -258,14 +258,15 @@ void Lights::fill(glsl::GpuScene& g) const {
   // A map's radiance reaches background() through its own buffers.
   if (scene_.environment && !map_)
     g.env = glm::vec4(scene_.environment->color * scene_.environment->intensity, 0);
-  g.sun_direction = glm::vec4(0, 1, 0, 1);  // cos 1: no visible disk
-  if (scene_.sun)
-    g.sun_direction = glm::vec4(glm::normalize(scene_.sun->direction), 1);  // the walk's sun lobe
-  if (scene_.sun && scene_.sun->angular_diameter > 0.f) {
-    const auto& sun = *scene_.sun;
+  // The direction for any sun (the walk's sun lobe reads it); cos 1: no visible disk.
+  g.sun_direction = glm::vec4(0, 1, 0, 1);
+  if (!scene_.sun) return;
+  const auto& sun = *scene_.sun;
+  g.sun_direction = glm::vec4(glm::normalize(sun.direction), 1);
+  if (sun.angular_diameter > 0.f) {
     float cos_max = std::cos(glm::radians(sun.angular_diameter * 0.5f));
     float omega = 2.f * glsl::PI * (1.f - cos_max);
-    g.sun_direction = glm::vec4(glm::normalize(sun.direction), cos_max);
+    g.sun_direction.w = cos_max;
     g.sun_radiance = glm::vec4(sun.color * sun.irradiance / std::max(omega, 1e-30f), 0);
   }
 }

@@ -278,14 +278,14 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   media_.declare(t);
   lights_.declare(t);
   if (s.render.max_depth > 1) t.define("HAZE_MULTI");
-  if (s.render.estimator == "volpath")
+  if (s.render.estimator == "volpath") {
     t.define("HAZE_VOLPATH");
-  else
+  } else {
     media_.declare_minorant(t);
-  // pbrt's walk samples the phase function alone; the default's mixes in a lobe towards the sun.
-  if (s.render.estimator == "default" && s.render.max_depth > 1 && s.lights.sun && media_.any() &&
-      s.render.sun_walk_probability > 0.f)
-    t.define("HAZE_SUN_WALK");
+    // pbrt's walk samples the phase function alone; the default's mixes in a lobe towards the sun.
+    if (s.render.max_depth > 1 && s.lights.sun && media_.any() && s.render.sun_walk_probability > 0.f)
+      t.define("HAZE_SUN_WALK");
+  }
   // Walk rays (more than one event) reach the environment and emissive triangles, which NEE samples too.
   if (s.render.mis == "power" && s.render.max_depth > 1 && (lights_.has_environment() || lights_.has_area()))
     t.define("HAZE_MIS");

@@ -70,6 +70,16 @@ json cloud_medium(double density, int seed, const std::vector<double>& albedo, d
           {"g", g}};
 }
 
+// Haze filling the cube [-half, half]^3.
+json haze_cube(double sigma_t, const std::vector<double>& albedo, double g, double half) {
+  return {{"sigma_t", sigma_t},
+          {"albedo", albedo},
+          {"g", g},
+          {"bounded", true},
+          {"bounds_min", {-half, -half, -half}},
+          {"bounds_max", {half, half, half}}};
+}
+
 // Density profile (in world y) of the box: 1 on the voxel centres it covers, linear to 0 over one voxel
 // outside (trilinear interpolation), and its integral from -inf to y.
 struct BoxProfile {
@@ -524,13 +534,7 @@ TEST(Estimator, SpotAirlightWithConeClippedEquiAngularOnly) {
 TEST_P(EstimatorP, WhiteFurnaceWithOverlappingMedia) {
   json j = {{"camera", {{"position", {0, 0, 4}}, {"target", {0, 0, 0}}, {"fov_y", 40}}},
             {"media", json::array({cloud_medium(3.0, 5, {1, 1, 1}, 0.5)})},
-            {"haze",
-             {{"sigma_t", 0.7},
-              {"albedo", {1, 1, 1}},
-              {"g", -0.3},
-              {"bounded", true},
-              {"bounds_min", {-1, -1, -1}},
-              {"bounds_max", {1, 1, 1}}}},
+            {"haze", haze_cube(0.7, {1, 1, 1}, -0.3, 1)},
             {"lights", {{"environment", {{"color", {1, 1, 1}}, {"intensity", 1.0}}}}},
             {"render", {{"width", 10}, {"height", 10}, {"max_depth", 256}}}};
   scene::Scene s = make_scene(with_estimator(j, GetParam()));
@@ -876,13 +880,7 @@ TEST(Estimator, SunWalkLobeIsUnbiased) {
 TEST(Estimator, DecompositionTrackingAgreesWithVolpathInHaze) {
   json j = {{"camera", {{"position", {0, 0.2, 3.4}}, {"target", {0, 0, 0}}, {"fov_y", 40}}},
             {"media", json::array({cloud_medium(4.0, 6, {0.95, 0.95, 0.95}, 0.6)})},
-            {"haze",
-             {{"sigma_t", 0.6},
-              {"albedo", {0.3, 0.4, 0.5}},
-              {"g", -0.3},
-              {"bounded", true},
-              {"bounds_min", {-1.2, -1.2, -1.2}},
-              {"bounds_max", {1.2, 1.2, 1.2}}}},
+            {"haze", haze_cube(0.6, {0.3, 0.4, 0.5}, -0.3, 1.2)},
             {"lights", {{"sun", {{"direction", {0.4, 1, 0.3}}, {"irradiance", 3}}}}},
             {"render", {{"width", 10}, {"height", 10}, {"pixel_jitter", false}, {"max_depth", 4}}}};
   auto run = [&](const std::string& estimator, int spp, uint32_t seed) {

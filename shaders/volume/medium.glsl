@@ -494,6 +494,10 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
     r.violated =
         r.violated || above_majorant(sigma, sigma_maj + sigma_min) || below_minorant(sigma, sigma_min);
 #endif
+#if HAZE_DECOMPOSITION
+    // Delta tracking's control: the haze and the cell's minorant.
+    if (mode == TRACK_DELTA) r.violated = r.violated || below_minorant(ms.sigma_t - s_haze, it.sigma_min);
+#endif
     sigma -= sigma_min;
     if (at_end) {
       r.ms = ms;
@@ -527,7 +531,6 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
 #elif HAZE_DECOMPOSITION
     else if (u_delta < ms.sigma_t) {
       // Above the control: the collision is the residual's, the grid medium's (the haze is all control).
-      r.violated = r.violated || below_minorant(ms.sigma_t - s_haze, it.sigma_min);
       ms = grid_medium_collision();
 #else
   else if (rng_next(rng) * sigma_maj < ms.sigma_t) {
