@@ -281,7 +281,7 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   if (s.render.estimator == "volpath") {
     t.define("HAZE_VOLPATH");
   } else {
-    media_.declare_minorant(t);
+    media_.declare_default_tracking(t);
     // pbrt's walk samples the phase function alone; the default's mixes in a lobe towards the sun.
     if (s.render.max_depth > 1 && s.lights.sun && media_.any() && s.render.sun_walk_probability > 0.f)
       t.define("HAZE_SUN_WALK");

@@ -172,6 +172,38 @@ TEST(ConeClip, MatchesABruteForceScan) {
   EXPECT_EQ(all.y, 3.f);
 }
 
+// The stochastic trilinear lookup's corner choice follows the trilinear weights: a chi-square over the 8
+// corners at fractional positions inside the cell, on a face and near others. Injected: u not rescaled
+// after a decision (correlated axes) fails at every position (chi-square 458 to 415730 against 22 to 30),
+// and so does the branch not taken rescaled as the taken one (400801 to 7.2e6).
+TEST(TrilinearCorner, FollowsTheTrilinearWeights) {
+  const vec3 fs[] = {vec3(0.3f, 0.7f, 0.5f), vec3(0.05f, 0.9f, 0.5f), vec3(0.f, 0.5f, 1e-3f),
+                     vec3(0.999f, 0.25f, 0.6f)};
+  const int n = 400000;
+  for (vec3 f : fs) {
+    uint state = rng_init(11u, uint(f.x * 1000), uint(f.y * 1000));
+    double counts[8] = {};
+    for (int i = 0; i < n; ++i) {
+      ivec3 c = trilinear_corner(f, rng_next(state));
+      counts[c.x + 2 * c.y + 4 * c.z] += 1;
+    }
+    double chi2 = 0;
+    int df = -1;
+    for (int c = 0; c < 8; ++c) {
+      double w = (c & 1 ? f.x : 1 - f.x) * (c & 2 ? f.y : 1 - f.y) * (c & 4 ? f.z : 1 - f.z);
+      if (w == 0) {
+        EXPECT_EQ(counts[c], 0) << "corner " << c << " has weight 0";
+        continue;
+      }
+      double e = w * n;
+      if (e < 5) continue;  // rare corners: too few expected draws for the chi-square
+      chi2 += (counts[c] - e) * (counts[c] - e) / e;
+      ++df;
+    }
+    EXPECT_LT(chi2, chi2_critical(df)) << "f = (" << f.x << ", " << f.y << ", " << f.z << ")";
+  }
+}
+
 TEST(TruncatedExponential, SamplesFollowTheirPdf) {
   for (float tau_total : {1e-5f, 0.3f, 2.f, 40.f}) {
     uint state = rng_init(9u, 2u, uint(tau_total * 100));

@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -628,6 +629,18 @@ TEST_F(VdbTest, MajorantRespectsClipBoxes) {
   EXPECT_GT(build_majorant(in, 16).world_min.x, 1.0);
 }
 
+// The smallest value a medium's sampler can read (the default estimator reads one voxel a lookup only where
+// none is negative): a negative voxel, else the background where the tree has no node.
+TEST_F(VdbTest, MajorantReportsTheSmallestReadableValue) {
+  write_grids({grid({{{0, 0, 0}, 1.f}, {{1, 0, 0}, -0.5f}})}, path("neg.vdb"));
+  DeviceGrid neg = load_grid(path("neg.vdb"), "density");
+  EXPECT_EQ(build_majorant({{&neg, glm::dmat4(1), 2.0}}, 4).value_min, std::vector<float>{-0.5f});
+  write_grids({grid({{{0, 0, 0}, 1.f}, {{1, 0, 0}, 0.5f}})}, path("pos.vdb"));
+  DeviceGrid pos = load_grid(path("pos.vdb"), "density");
+  EXPECT_EQ(build_majorant({{&pos, glm::dmat4(1), 2.0}, {&neg, glm::dmat4(1), 1.0}}, 4).value_min,
+            (std::vector<float>{0.f, -0.5f}));
+}
+
 TEST_F(VdbTest, MajorantAxisAlignedBox) {
   ProceduralSpec box;
   box.kind = "box";
@@ -660,6 +673,13 @@ TEST_F(VdbTest, MajorantAxisAlignedBox) {
   EXPECT_EQ(build_majorant({}, 32).res, glm::ivec3(0));
   expect_vdb_error([&] { build_majorant({{&g, glm::dmat4(1), -1.0}}, 8); }, {"density scale"});
   expect_vdb_error([&] { build_majorant({{&g, glm::dmat4(1), 1.0}}, 0); }, {"resolution"});
+
+  // No value below 0 (the box ramps to the background, 0): its densities may be read one voxel at a time.
+  EXPECT_EQ(maj.value_min, std::vector<float>{0.f});
+  // A medium of scale 0 and one clipped away read nothing.
+  MajorantGrid none =
+      build_majorant({{&g, glm::dmat4(1), 0.0}, {&g, glm::dmat4(1), 1.0, glm::dvec3(5), glm::dvec3(6)}}, 8);
+  EXPECT_EQ(none.value_min, std::vector<float>(2, std::numeric_limits<float>::infinity()));
 
   // Two separated boxes: the cells between them are empty.
   MajorantGrid two =

@@ -192,6 +192,7 @@ MajorantGrid build_majorant(const std::vector<MajorantInput>& media, int resolut
   if (resolution < 1) throw Error(fmt::format("majorant grid: resolution must be >= 1, got {}", resolution));
 
   struct Medium {
+    size_t index;  // into media
     const DeviceGrid* g;
     glm::dmat4 w2i;
     double scale;
@@ -200,6 +201,7 @@ MajorantGrid build_majorant(const std::vector<MajorantInput>& media, int resolut
     glm::dvec3 clip_min, clip_max;
   };
   std::vector<Medium> ms;
+  out.value_min.assign(media.size(), std::numeric_limits<float>::infinity());
   glm::dvec3 wmin(std::numeric_limits<double>::max()), wmax = -wmin;
   for (size_t i = 0; i < media.size(); ++i) {
     const MajorantInput& in = media[i];
@@ -213,7 +215,8 @@ MajorantGrid build_majorant(const std::vector<MajorantInput>& media, int resolut
     if (!(std::abs(det) > 0) || !std::isfinite(det))
       throw Error(fmt::format("majorant grid: medium {} (grid '{}') has a singular or non-finite transform",
                               i, in.grid->name));
-    Medium m{in.grid,
+    Medium m{i,
+             in.grid,
              glm::inverse(i2w),
              in.density_scale,
              in.grid->index_min - 1,
@@ -264,6 +267,7 @@ MajorantGrid build_majorant(const std::vector<MajorantInput>& media, int resolut
     while (B < 4096 && (span.x / B + 1) * (span.y / B + 1) * (span.z / B + 1) > double(1 << 24)) B *= 2;
     Sampler sampler(*m.g);
     const BrickBounds bricks(*as_grid(sampler.aligned_buffer()), m.lo, m.hi, B);
+    out.value_min[m.index] = *std::min_element(bricks.vmin.begin(), bricks.vmin.end());
 
     // Where the medium is nonzero at most; a cell counts towards the minorant only inside it.
     glm::dvec3 inner_min, inner_max;

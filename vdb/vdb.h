@@ -156,6 +156,9 @@ struct MajorantGrid {
       world_max{0};              // union of the media's world bboxes (index bbox dilated by one voxel)
   std::vector<float> sigma_max;  // res.x*res.y*res.z, x fastest
   std::vector<float> sigma_min;  // the same cells' minorant (the control of residual ratio tracking)
+  // Per input medium, the smallest value its sampler can read in its box (+inf for a medium of scale 0):
+  // where none is negative, one voxel chosen by the trilinear weights estimates the density without bias.
+  std::vector<float> value_min;
   glm::vec3 cell_size() const { return (world_max - world_min) / glm::vec3(glm::max(res, glm::ivec3(1))); }
   float at(glm::ivec3 c) const { return sigma_max[(size_t(c.z) * res.y + c.y) * res.x + c.x]; }
   float min_at(glm::ivec3 c) const { return sigma_min[(size_t(c.z) * res.y + c.y) * res.x + c.x]; }

@@ -137,6 +137,13 @@ DeviceMedia build_media(const scene::Scene& s, const DeviceMedia* previous) {
     maj_in.push_back({&dm.grids[density_index[i]], object_to_world[i], double(s.media[i].density_scale),
                       outward(dm.media[i].world_min, -1), outward(dm.media[i].world_max, 1)});
   dm.majorant = vdb::build_majorant(maj_in, s.render.majorant_resolution);
+  if (s.render.estimator != "volpath")
+    for (size_t i = 0; i < s.media.size(); ++i)
+      if (dm.majorant.value_min[i] < 0)
+        dm.notes.push_back(fmt::format(
+            "media[{}]: the grid has negative values (down to {}): the default estimator reads densities "
+            "trilinearly (8 voxels a lookup), not one voxel chosen by the trilinear weights",
+            i, dm.majorant.value_min[i]));
   return dm;
 }
 
@@ -313,13 +320,21 @@ void Media::declare(gpu::KernelDecl& k) const {
   k.buffer("majorant", majorant_.size(), 4);
 }
 
-void Media::declare_minorant(gpu::KernelDecl& k) const {
+void Media::declare_default_tracking(gpu::KernelDecl& k) const {
   if (!minorant_.valid()) return;
   k.define("HAZE_MINORANT");
   k.buffer("minorant", minorant_.size(), 4);
   // Delta tracking skips the lookup of collisions under the control when a collision needs no more than
   // constants: one grid medium, grey, without emission.
   if (host_.media.size() == 1 && !emission_ && !chromatic_) k.define("HAZE_DECOMPOSITION");
+  // The trackers use sigma_t linearly, so one voxel chosen by the trilinear weights serves for the eight,
+  // where no value is negative (the shader counts a negative density as 0, which does not commute with the
+  // choice). With one grid its accessor is kept over a sample's lookups.
+  const auto& v = host_.majorant.value_min;
+  if (std::all_of(v.begin(), v.end(), [](float x) { return x >= 0.f; })) {
+    k.define("HAZE_STOCHASTIC_LOOKUP");
+    if (host_.media.size() == 1) k.define("HAZE_ONE_GRID");
+  }
 }
 
 void Media::bind(gpu::Bindings& b) const {

@@ -74,8 +74,10 @@ class DeviceGrids {
 // The media on the device. Features: HAZE_HETERO (VDB media: the grid table, media table, majorant grid),
 // HAZE_HAZE (homogeneous haze, in the scene block only), HAZE_EMISSION (an emitting VDB medium),
 // HAZE_CHROMATIC (some medium's sigma_t_color is not [1, 1, 1]: per-channel extinction), and for the default
-// estimator's tracking kernel HAZE_MINORANT (the minorant grid, declare_minorant) and, with one grey VDB
-// medium without emission, HAZE_DECOMPOSITION (delta tracking's collisions under the control need no lookup).
+// estimator's tracking kernel (declare_default_tracking) HAZE_MINORANT (the minorant grid), with one grey VDB
+// medium without emission HAZE_DECOMPOSITION (delta tracking's collisions under the control need no lookup),
+// and where no grid value is negative HAZE_STOCHASTIC_LOOKUP (one voxel a lookup, chosen by the trilinear
+// weights; HAZE_ONE_GRID keeps the one grid's accessor over a sample).
 // Every NanoVDB grid is a buffer of its own, read through its device address (DeviceGrids), so the grids
 // together may exceed maxStorageBufferRange. How the media moved since the previous frame (transforms and
 // velocity grids) is the volume motion pass's input (guiding/volume_motion.hpp), kept only while wanted.
@@ -106,9 +108,9 @@ class Media : public gpu::DeviceData {
 
   void declare(gpu::KernelDecl& k) const override;
   // HAZE_MINORANT and the minorant grid, for the kernel whose tracking takes it as its control (and
-  // HAZE_DECOMPOSITION where a collision needs only constants); nothing unless the scene's estimator is the
-  // default one and it has VDB media.
-  void declare_minorant(gpu::KernelDecl& k) const;
+  // HAZE_DECOMPOSITION where a collision needs only constants, HAZE_STOCHASTIC_LOOKUP where no grid value is
+  // negative); nothing unless the scene's estimator is the default one and it has VDB media.
+  void declare_default_tracking(gpu::KernelDecl& k) const;
   void bind(gpu::Bindings& b) const override;
   // counts.x, the haze, the majorant grid's bounds and resolution, the tracking step cap.
   void fill(glsl::GpuScene& g) const;

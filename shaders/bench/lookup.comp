@@ -28,7 +28,7 @@ void main() {
   float sum = 0.0f;
   for (uint k = 0u; k < pc.lookups; ++k) {
     vec3 u = vec3(rng_next(rng), rng_next(rng), rng_next(rng));
-    sum += sample_medium(mix(scene.maj_min.xyz, scene.maj_max.xyz, u), 0.5f).sigma_t;
+    sum += sample_medium(mix(scene.maj_min.xyz, scene.maj_max.xyz, u), 0.5f, 0.5f).sigma_t;
   }
   result[i] = sum;
 }

@@ -13,6 +13,25 @@ HAZE_INLINE float log_one_minus(float x) {
   return x < 1e-4f ? -x * (1.0f + 0.5f * x) : log(1.0f - x);
 }
 
+// One corner of a trilinear cell (0 or 1 per axis) for the fractional position f, chosen with probability
+// equal to its trilinear weight: axis a is 1 with probability f[a], independently. One uniform u serves the
+// three axes (streaming: u is rescaled after each decision, so every decision's probability is exact to
+// about 2^-24 of the branch that reaches it). The value at that corner is an unbiased one-read estimate of
+// the trilinear interpolation.
+HAZE_INLINE ivec3 trilinear_corner(vec3 f, float u) {
+  ivec3 c = ivec3(0);
+  for (int a = 0; a < 3; ++a) {
+    if (u < f[a]) {
+      c[a] = 1;
+      u = u / f[a];
+    } else {
+      u = (u - f[a]) / (1.0f - f[a]);
+    }
+    u = min(u, 0.99999994f);  // rounding must not carry u to 1
+  }
+  return c;
+}
+
 // Orthonormal basis around a unit vector n (Duff et al. 2017).
 HAZE_INLINE vec3 onb_to_world(vec3 n, vec3 local) {
   float s = n.z >= 0.0f ? 1.0f : -1.0f;

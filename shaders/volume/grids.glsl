@@ -29,15 +29,22 @@ uvec2 pnanovdb_buf_read_uint64(pnanovdb_buf_t buf, uint byte_offset) {
 #define PNANOVDB_GRID_TYPE_GET(grid_typeIn, nameIn) pnanovdb_grid_type_constants[grid_typeIn].nameIn
 #include "nanovdb/PNanoVDB.h"
 
-// Trilinear value of float grid `grid` at an index-space position: one PNanoVDB lookup call site, corners
-// in a loop that is kept rolled (each inlined lookup costs about a second of pipeline creation on
-// lavapipe). Call it from one place per kernel.
-float grid_trilinear(uint grid, vec3 p) {
+// A new accessor of grid, at its root.
+pnanovdb_readaccessor_t grid_accessor(uint grid) {
   pnanovdb_buf_t buf = pnanovdb_buf_t(grid_addresses[grid]);
   pnanovdb_grid_handle_t handle;
   handle.address.byte_offset = 0u;
   pnanovdb_readaccessor_t acc;
   pnanovdb_readaccessor_init(acc, pnanovdb_tree_get_root(buf, pnanovdb_grid_get_tree(buf, handle)));
+  return acc;
+}
+
+// Trilinear value of float grid `grid` at an index-space position: one PNanoVDB lookup call site, corners
+// in a loop that is kept rolled (each inlined lookup costs about a second of pipeline creation on
+// lavapipe). Call it from one place per kernel.
+float grid_trilinear(uint grid, vec3 p) {
+  pnanovdb_buf_t buf = pnanovdb_buf_t(grid_addresses[grid]);
+  pnanovdb_readaccessor_t acc = grid_accessor(grid);
   vec3 pf = floor(p);
   ivec3 i0 = ivec3(pf);
   vec3 f = p - pf;
@@ -51,5 +58,20 @@ float grid_trilinear(uint grid, vec3 p) {
   }
   return sum;
 }
+
+#if HAZE_STOCHASTIC_LOOKUP
+#include "common/sampling.glsl"
+// One voxel of grid's trilinear footprint at p, chosen with probability equal to its weight
+// (trilinear_corner, uniform u): an unbiased estimate of grid_trilinear at one read, where the caller uses
+// the value linearly (the trackers do) and no value is negative (the host checks). acc: the grid's accessor,
+// kept by the caller (the next lookup often falls in the same leaf).
+float grid_voxel(uint grid, vec3 p, float u, INOUT(pnanovdb_readaccessor_t) acc) {
+  pnanovdb_buf_t buf = pnanovdb_buf_t(grid_addresses[grid]);
+  vec3 pf = floor(p);
+  ivec3 ijk = ivec3(pf) + trilinear_corner(p - pf, u);
+  return pnanovdb_read_float(
+      buf, pnanovdb_readaccessor_get_value_address(PNANOVDB_GRID_TYPE_FLOAT, buf, acc, ijk));
+}
+#endif
 
 #endif

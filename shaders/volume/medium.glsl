@@ -41,14 +41,16 @@ HAZE_INLINE float trans_mean(float T) {
 #endif
 
 struct MediumSample {
-  float sigma_t;        // total extinction (chromatic: the sum of the components' unscaled sigma_t)
-  float sigma_control;  // the homogeneous haze part of sigma_t (tracked in closed form)
-  vec3 albedo;          // of the chosen component (chosen with probability sigma_t,i / sigma_t)
+  float sigma_t;    // total extinction (chromatic: the sum of the components' unscaled sigma_t)
+  float sigma_het;  // the grid media's part of sigma_t, summed apart from the haze (residual tracking takes
+                    // the haze in closed form; (haze + grids) - haze would lose the grids' low bits)
+  vec3 albedo;      // of the chosen component (chosen with probability sigma_t,i / sigma_t)
   float g;
   vec3 emit;  // (1 - albedo_i) * Le_i of the chosen component: E[sigma_t * emit] = sigma_a * Le
 #if HAZE_CHROMATIC
-  vec3 sigma_c;  // sigma_t per channel, exactly: sum over components of sigma_t,i * sigma_t_color_i
-  vec3 color;    // the chosen component's sigma_t_color: E[sigma_t * color * X_i] = sum_i sigma_t,i,c X_i
+  vec3 sigma_c;      // sigma_t per channel, exactly: sum over components of sigma_t,i * sigma_t_color_i
+  vec3 sigma_c_het;  // its grid media's part (as sigma_het)
+  vec3 color;        // the chosen component's sigma_t_color: E[sigma_t * color * X_i] = sum_i sigma_t,i,c X_i
 #endif
 };
 
@@ -95,12 +97,13 @@ float media_exit(vec3 o, vec3 d) {
 MediumSample haze_at(vec3 x) {
   MediumSample ms;
   ms.sigma_t = 0.0f;
-  ms.sigma_control = 0.0f;
+  ms.sigma_het = 0.0f;
   ms.albedo = vec3(0.0f);
   ms.g = 0.0f;
   ms.emit = vec3(0.0f);
 #if HAZE_CHROMATIC
   ms.sigma_c = vec3(0.0f);
+  ms.sigma_c_het = vec3(0.0f);
   ms.color = vec3(1.0f);
 #endif
 #if HAZE_HAZE
@@ -110,7 +113,6 @@ MediumSample haze_at(vec3 x) {
     ms.color = scene.haze_sigma_t_color.rgb;
 #endif
     ms.sigma_t = scene.haze_min.w;
-    ms.sigma_control = scene.haze_min.w;
     ms.albedo = scene.haze_albedo_g.rgb;
     ms.g = scene.haze_albedo_g.w;
   }
@@ -118,9 +120,37 @@ MediumSample haze_at(vec3 x) {
   return ms;
 }
 
+#if HAZE_HETERO
+#if HAZE_STOCHASTIC_LOOKUP && HAZE_ONE_GRID
+// The one grid medium's density accessor, kept over a sample's lookups (media_begin_sample).
+pnanovdb_readaccessor_t density_acc;
+#endif
+// Before a sample's first lookup.
+void media_begin_sample() {
+#if HAZE_STOCHASTIC_LOOKUP && HAZE_ONE_GRID
+  density_acc = grid_accessor(media[0].grid.x);
+#endif
+}
+
+// The density grid of medium m at index position p: trilinear, or with HAZE_STOCHASTIC_LOOKUP one voxel of
+// its footprint chosen by the trilinear weights with the uniform u_voxel (an unbiased estimate at an eighth
+// of the reads; the trackers use sigma_t linearly).
+float medium_density(uint m, vec3 p, float u_voxel) {
+#if HAZE_STOCHASTIC_LOOKUP && HAZE_ONE_GRID
+  return grid_voxel(media[m].grid.x, p, u_voxel, density_acc);
+#elif HAZE_STOCHASTIC_LOOKUP
+  pnanovdb_readaccessor_t acc = grid_accessor(media[m].grid.x);
+  return grid_voxel(media[m].grid.x, p, u_voxel, acc);
+#else
+  return grid_trilinear(media[m].grid.x, p);
+#endif
+}
+#endif
+
 // sigma_t at x, and one component chosen with probability sigma_t,i / sigma_t using the single uniform u
-// (streaming selection: u is rescaled after each decision).
-MediumSample sample_medium(vec3 x, float u) {
+// (streaming selection: u is rescaled after each decision). u_voxel: the density lookups' voxel choice
+// (medium_density).
+MediumSample sample_medium(vec3 x, float u, float u_voxel) {
   MediumSample ms = haze_at(x);
 #if HAZE_HETERO
   int chosen = -1;
@@ -129,11 +159,13 @@ MediumSample sample_medium(vec3 x, float u) {
     if (!inside_box(x, media[m].world_min.xyz, media[m].world_max.xyz)) continue;
     vec3 p = (media[m].world_to_index * vec4(x, 1.0f)).xyz;
     // Negative or non-finite voxel values count as empty space.
-    float s = media[m].world_min.w * grid_trilinear(media[m].grid.x, p);
+    float s = media[m].world_min.w * medium_density(m, p, u_voxel);
     if (!(s > 0.0f) || isinf(s)) continue;
     ms.sigma_t += s;
+    ms.sigma_het += s;
 #if HAZE_CHROMATIC
     ms.sigma_c += s * media[m].sigma_t_color.rgb;
+    ms.sigma_c_het += s * media[m].sigma_t_color.rgb;
 #endif
     float p_take = s / ms.sigma_t;
     if (u < p_take) {
@@ -364,7 +396,7 @@ bool spectral_collision(INOUT(vec3) W, MediumSample ms, float sigma_maj, INOUT(u
 MediumSample grid_medium_collision() {
   MediumSample ms;
   ms.sigma_t = 0.0f;  // not read after a delta-tracked collision
-  ms.sigma_control = 0.0f;
+  ms.sigma_het = 0.0f;
   ms.albedo = media[0].albedo_g.rgb;
   ms.g = media[0].albedo_g.w;
   ms.emit = vec3(0.0f);
@@ -384,12 +416,13 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
   r.hit = false;
   r.t = t1;
   r.ms.sigma_t = 0.0f;
-  r.ms.sigma_control = 0.0f;
+  r.ms.sigma_het = 0.0f;
   r.ms.albedo = vec3(0.0f);
   r.ms.g = 0.0f;
   r.ms.emit = vec3(0.0f);
 #if HAZE_CHROMATIC
   r.ms.sigma_c = vec3(0.0f);
+  r.ms.sigma_c_het = vec3(0.0f);
   r.ms.color = vec3(1.0f);
 #endif
   r.lookups = 0u;
@@ -481,22 +514,27 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
       }
     }
 #endif
-    MediumSample ms = sample_medium(x, rng_next(rng));
+#if HAZE_STOCHASTIC_LOOKUP
+    float u_voxel = rng_next(rng);
+#else
+    const float u_voxel = 0.5f;
+#endif
+    MediumSample ms = sample_medium(x, rng_next(rng), u_voxel);
     r.lookups += 1u;
     // The part of sigma_t this query's majorant bounds (the haze's control is exact); checked against both
     // bounds before the minorant's control is taken off.
 #if HAZE_CHROMATIC
-    vec3 sigma = control ? ms.sigma_c - ms.sigma_control * scene.haze_sigma_t_color.rgb : ms.sigma_c;
+    vec3 sigma = control ? ms.sigma_c_het : ms.sigma_c;
     r.violated = r.violated || above_majorant(trans_max(sigma), sigma_maj + sigma_min) ||
                  below_minorant(min(sigma.x, min(sigma.y, sigma.z)), sigma_min);
 #else
-    float sigma = control ? ms.sigma_t - ms.sigma_control : ms.sigma_t;
+    float sigma = control ? ms.sigma_het : ms.sigma_t;
     r.violated =
         r.violated || above_majorant(sigma, sigma_maj + sigma_min) || below_minorant(sigma, sigma_min);
 #endif
 #if HAZE_DECOMPOSITION
     // Delta tracking's control: the haze and the cell's minorant.
-    if (mode == TRACK_DELTA) r.violated = r.violated || below_minorant(ms.sigma_t - s_haze, it.sigma_min);
+    if (mode == TRACK_DELTA) r.violated = r.violated || below_minorant(ms.sigma_het, it.sigma_min);
 #endif
     sigma -= sigma_min;
     if (at_end) {

@@ -4,9 +4,9 @@
 #extension GL_GOOGLE_include_directive : require
 #extension GL_EXT_control_flow_attributes : require
 layout(local_size_x = 64) in;
-#include "common/dispatch.glsl"
 #include "common/color.glsl"
 #include "common/compat.glsl"
+#include "common/dispatch.glsl"
 #include "common/rng.glsl"
 #include "common/sampling.glsl"
 #include "volume/gpu_scene.glsl"
@@ -25,5 +25,5 @@ pc;
 void main() {
   uint i = invocation_index();
   if (i >= pc.count) return;
-  sigma[i] = sample_medium(points[i].xyz, 0.5f).sigma_t;
+  sigma[i] = sample_medium(points[i].xyz, 0.5f, 0.5f).sigma_t;
 }

@@ -244,6 +244,9 @@ void main() {
   if (pix.x >= W || pix.y >= H) return;
   uint pixel = pix.y * W + pix.x;
   uint rng = rng_init(scene.counts.w, pixel, pc.sample_index);
+#if HAZE_HETERO
+  media_begin_sample();
+#endif
 
   vec2 jitter = scene.settings.z > 0.5f ? vec2(rng_next(rng), rng_next(rng)) : vec2(0.5f);
   vec3 cam_o = scene.cam_position.xyz;
