@@ -200,9 +200,8 @@ MediumSample sample_medium(vec3 x, float u, float u_voxel) {
 struct MajorantIter {
   vec3 o, d;
   float t, t1;
-  float h0, h1;  // haze interval
-  float g0, g1;  // majorant-grid interval
-  bool dda_started;
+  float h0, h1;     // haze interval
+  float g0, g1;     // majorant-grid interval
   float sigma_min;  // HAZE_MINORANT: the minorant of the segment maj_next returned last (0 outside the grid)
   ivec3 cell;
   ivec3 step;
@@ -233,12 +232,30 @@ MajorantIter maj_init(vec3 o, vec3 d, float t0, float t1) {
     it.g1 = g.y;
   }
 #endif
-  it.dda_started = false;
   it.sigma_min = 0.0f;
   it.cell = ivec3(0);
   it.step = ivec3(0);
   it.t_max = vec3(0.0f);
   it.t_delta = vec3(0.0f);
+#if HAZE_HETERO
+  // The DDA starts where the ray enters the grid (or at t0 inside it).
+  if (it.g0 <= it.g1) {
+    vec3 cs = (scene.maj_max.xyz - scene.maj_min.xyz) / vec3(scene.maj_res.xyz);
+    vec3 p = (o + d * max(it.g0, t0) - scene.maj_min.xyz) / cs;
+    it.cell = clamp(ivec3(floor(p)), ivec3(0), ivec3(scene.maj_res.xyz) - 1);
+    it.step = ivec3(sign(d));
+    vec3 next = scene.maj_min.xyz + (vec3(it.cell) + max(vec3(it.step), vec3(0.0f))) * cs;
+    for (int a = 0; a < 3; ++a) {
+      if (d[a] == 0.0f) {
+        it.t_max[a] = T_INF;
+        it.t_delta[a] = T_INF;
+      } else {
+        it.t_max[a] = (next[a] - o[a]) / d[a];
+        it.t_delta[a] = cs[a] / abs(d[a]);
+      }
+    }
+  }
+#endif
   return it;
 }
 
@@ -263,24 +280,6 @@ bool maj_next(INOUT(MajorantIter) it, OUT(float) sigma_het, OUT(float) sigma_haz
   if (t_a < it.g0) {
     t_b = min(t_b, it.g0);
   } else if (t_a < it.g1) {
-    vec3 res = vec3(scene.maj_res.xyz);
-    vec3 cs = (scene.maj_max.xyz - scene.maj_min.xyz) / res;
-    if (!it.dda_started) {
-      it.dda_started = true;
-      vec3 p = (it.o + it.d * t_a - scene.maj_min.xyz) / cs;
-      it.cell = clamp(ivec3(floor(p)), ivec3(0), ivec3(scene.maj_res.xyz) - 1);
-      it.step = ivec3(sign(it.d));
-      vec3 next = scene.maj_min.xyz + (vec3(it.cell) + max(vec3(it.step), vec3(0.0f))) * cs;
-      for (int a = 0; a < 3; ++a) {
-        if (it.d[a] == 0.0f) {
-          it.t_max[a] = T_INF;
-          it.t_delta[a] = T_INF;
-        } else {
-          it.t_max[a] = (next[a] - it.o[a]) / it.d[a];
-          it.t_delta[a] = cs[a] / abs(it.d[a]);
-        }
-      }
-    }
     ivec3 r = ivec3(scene.maj_res.xyz);
     sigma_het = majorant[(it.cell.z * r.y + it.cell.y) * r.x + it.cell.x];
 #if HAZE_MINORANT
