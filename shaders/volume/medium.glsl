@@ -198,7 +198,6 @@ MediumSample sample_medium(vec3 x, float u, float u_voxel) {
 // Piecewise-constant majorant along a ray: the heterogeneous part from a 3D DDA over the majorant grid,
 // the haze part from its box. Segments break at cell and box boundaries.
 struct MajorantIter {
-  vec3 o, d;
   float t, t1;
   float h0, h1;     // haze interval
   float g0, g1;     // majorant-grid interval
@@ -210,8 +209,6 @@ struct MajorantIter {
 
 MajorantIter maj_init(vec3 o, vec3 d, float t0, float t1) {
   MajorantIter it;
-  it.o = o;
-  it.d = d;
   it.t = t0;
   it.t1 = t1;
   it.h0 = T_INF;
