@@ -155,9 +155,9 @@ json reference_identity(const scene::Scene& s, const ReferenceOptions& o) {
   json j = scene::to_json(s);
   j.erase("guiding");
   j.erase("denoise");
-  for (const char* k :
-       {"spp", "time_budget_s", "seed", "volume_samples", "majorant_resolution", "equiangular_probability",
-        "rr_threshold", "estimator", "outputs", "exposure", "tonemap", "frames"})
+  for (const char* k : {"spp", "time_budget_s", "seed", "volume_samples", "majorant_resolution",
+                        "equiangular_probability", "rr_threshold", "sun_walk_probability", "sun_walk_g",
+                        "walk_splits", "estimator", "outputs", "exposure", "tonemap", "frames"})
     j["render"].erase(k);
   // Files by content, so that the key is the same wherever the scene and its files are copied to. A
   // sequence's files are checked per frame instead (frame_inputs), so a longer range extends the reference.

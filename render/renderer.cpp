@@ -285,6 +285,9 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
     // pbrt's walk samples the phase function alone; the default's mixes in a lobe towards the sun.
     if (s.render.max_depth > 1 && s.lights.sun && media_.any() && s.render.sun_walk_probability > 0.f)
       t.define("HAZE_SUN_WALK");
+    // Several walks from the camera sample's first medium vertex share its tracking and NEE.
+    if (s.render.max_depth > 1 && media_.any() && s.render.walk_splits > 1)
+      t.define("HAZE_WALK_SPLITS", std::to_string(s.render.walk_splits));
   }
   // Walk rays (more than one event) reach the environment and emissive triangles, which NEE samples too.
   if (s.render.mis == "power" && s.render.max_depth > 1 && (lights_.has_environment() || lights_.has_area()))

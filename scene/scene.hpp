@@ -158,6 +158,9 @@ struct RenderSettings {
   // The default estimator's walk in sunlit media: a lobe towards the sun mixed into phase sampling.
   float sun_walk_probability = 0.2f;
   float sun_walk_g = 0.6f;
+  // The default estimator's walks from a camera sample's first medium vertex, each with 1/K of its
+  // throughput.
+  int walk_splits = 1;
   // "default": haze's estimator (docs/rendering.md); "volpath": pbrt-v4's VolPathIntegrator for grey media,
   // the baseline of the efficiency benchmark.
   std::string estimator = "default";
@@ -397,6 +400,10 @@ void reflect(V& v, RenderSettings& r) {
           "medium vertex is drawn from a lobe towards the sun instead of the phase function (0: off)");
   v.field("sun_walk_g", r.sun_walk_g, Range{0, 0.95},
           "Henyey-Greenstein g of the walk's sun lobe (sun_walk_probability)");
+  v.field(
+      "walk_splits", r.walk_splits, Range{1, 16},
+      "default estimator, multiple scattering: walks started from each camera sample's first medium vertex, "
+      "each with 1/K of its throughput (they share the camera ray's tracking and that vertex's NEE; 1: one)");
   v.field("estimator", r.estimator, Choices{"default", "volpath"},
           "default: haze's estimator; volpath: pbrt-v4's VolPathIntegrator (delta tracking, NEE at every "
           "collision), the efficiency benchmark's baseline");

@@ -878,6 +878,17 @@ TEST(Estimator, VolpathAndDefaultAgreeOnAFullScene) {
   expect_unbiased(two_sample_test(vs, ds), "surface term, volpath against default");
 }
 
+// A dense sunlit cloud under a bright environment, 10x10, multiple scattering to depth 32: the walk's
+// strategies (its sun lobe, split walks) against plain ones.
+json sunlit_cloud_under_sky() {
+  return {{"camera", {{"position", {0, 0.3, 3.4}}, {"target", {0, 0, 0}}, {"fov_y", 40}}},
+          {"media", json::array({cloud_medium(8.0, 3, {0.95, 0.9, 0.8}, 0.5)})},
+          {"lights",
+           {{"sun", {{"direction", {0.5, 0.8, 0.3}}, {"irradiance", 1}}},
+            {"environment", {{"color", {0.3, 0.35, 0.45}}, {"intensity", 4}}}}},
+          {"render", {{"width", 10}, {"height", 10}, {"pixel_jitter", false}, {"max_depth", 32}}}};
+}
+
 // The default walk's sun lobe (render.sun_walk_probability, here 0.5) against phase sampling alone, in a
 // dense sunlit cloud under a bright environment (the lobe's density enters the MIS weights of escaping walk
 // rays and of NEE), per pixel and channel. The two sides have different seeds: with the same one their
@@ -885,12 +896,7 @@ TEST(Estimator, VolpathAndDefaultAgreeOnAFullScene) {
 // f / pdf: pooled z +34..+50; NEE's MIS weight with the phase density alone (not the mixture's): chi2
 // 213-224 against a critical 122, pooled z -4.1..-5.8.
 TEST(Estimator, SunWalkLobeIsUnbiased) {
-  json j = {{"camera", {{"position", {0, 0.3, 3.4}}, {"target", {0, 0, 0}}, {"fov_y", 40}}},
-            {"media", json::array({cloud_medium(8.0, 3, {0.95, 0.9, 0.8}, 0.5)})},
-            {"lights",
-             {{"sun", {{"direction", {0.5, 0.8, 0.3}}, {"irradiance", 1}}},
-              {"environment", {{"color", {0.3, 0.35, 0.45}}, {"intensity", 4}}}}},
-            {"render", {{"width", 10}, {"height", 10}, {"pixel_jitter", false}, {"max_depth", 32}}}};
+  json j = sunlit_cloud_under_sky();
   auto run = [&](double P, int spp, int seed = 1) {
     json k = j;
     k["render"]["seed"] = seed;
@@ -902,6 +908,25 @@ TEST(Estimator, SunWalkLobeIsUnbiased) {
     return estimate(r, glsl::ACC_VOL, glsl::ACC_VOL2, 3);
   };
   expect_unbiased(two_sample_test(run(0.5, 2048, 7), run(0, 2048)), "sun lobe against phase sampling");
+}
+
+// Walks split at the camera sample's first medium vertex (render.walk_splits 3, WALK_SPLITS) against one
+// walk, per pixel and channel, on a dense sunlit cloud under an environment (escaping walks add their MIS
+// share). Injected: the walks' throughput not divided by K (3x the multiple scattering): pooled z +61..+75;
+// the saved walks restarted at depth 2 instead of 1 (one event fewer allowed): not seen at max_depth 32,
+// where the last event carries nothing measurable.
+TEST(Estimator, WalkSplitsAreUnbiased) {
+  json j = sunlit_cloud_under_sky();
+  auto run = [&](int K, int spp, int seed) {
+    json k = j;
+    k["render"]["seed"] = seed;
+    k["render"]["walk_splits"] = K;
+    render::Renderer r(context(), make_scene(k));
+    EXPECT_EQ(r.has_feature("WALK_SPLITS"), K > 1);  // 1: not a line of its code in the kernel
+    render_checked(r, spp, K > 1 ? "split walks" : "one walk");
+    return estimate(r, glsl::ACC_VOL, glsl::ACC_VOL2, 3);
+  };
+  expect_unbiased(two_sample_test(run(3, 1024, 5), run(1, 2048, 1)), "three walks against one");
 }
 
 // Decomposition tracking with the haze in its control: one grey cloud without emission inside haze of another

@@ -407,10 +407,11 @@ TEST(Reference, ConvergesToItsTargetAndIsCached) {
                       scene.string(), out));
   ASSERT_EQ(r.code, 0) << r.out;
   EXPECT_NE(r.out.find("up to date"), std::string::npos) << r.out;
-  r =
-      run(fmt::format("reference {} --out {} --target 0.05 --quantile 0.9 --min-spp 8 --max-spp 4096 --set "
-                      "render.spp=64 --set render.equiangular_probability=0.1 --set guiding.enabled=true",
-                      scene.string(), out));
+  r = run(
+      fmt::format("reference {} --out {} --target 0.05 --quantile 0.9 --min-spp 8 --max-spp 4096 --set "
+                  "render.spp=64 --set render.equiangular_probability=0.1 --set guiding.enabled=true --set "
+                  "render.walk_splits=2 --set render.sun_walk_probability=0.3",
+                  scene.string(), out));
   EXPECT_EQ(r.code, 0) << r.out;
   EXPECT_NE(r.out.find("up to date"), std::string::npos) << r.out;
   r = run(fmt::format("reference {} --out {} --set haze.sigma_t=0.5", scene.string(), out));

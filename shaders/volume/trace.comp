@@ -390,6 +390,12 @@ void main() {
   bool q_known = false;
   float q_rr = rr_T;  // the roulette threshold of the current ratio-tracking query
   for (uint pass = 0u; pass < passes; ++pass) {
+#if HAZE_WALK_SPLITS
+    bool split_done = false;  // this pass's first medium vertex has saved its walks
+    uint split_left = 0u;     // walks still to start from it
+    vec3 split_x = vec3(0.0f), split_d = vec3(0.0f), split_beta = vec3(0.0f);
+    float split_g = 0.0f, split_beta_start = 0.0f;
+#endif
     to_surface = false;
     d = cam_d;
     q_o = cam_o;
@@ -639,6 +645,21 @@ void main() {
             }
 #endif
           } else {
+#if HAZE_WALK_SPLITS
+            // The camera sample's first medium vertex starts HAZE_WALK_SPLITS walks, each with 1/K of the
+            // throughput (and of the roulette's yardstick, so that each walk's roulette is an unsplit one's).
+            if (depth == 1u && !split_done) {
+              split_done = true;
+              split_left = uint(HAZE_WALK_SPLITS) - 1u;
+              beta *= 1.0f / float(HAZE_WALK_SPLITS);
+              beta_start *= 1.0f / float(HAZE_WALK_SPLITS);
+              split_x = x;
+              split_d = d;
+              split_beta = beta;
+              split_g = g;
+              split_beta_start = beta_start;
+            }
+#endif
             vec3 d_in = d;
 #if HAZE_SUN_WALK
             // A mixture of the phase function and a lobe towards the sun: in dense media the walk reaches
@@ -839,6 +860,24 @@ void main() {
         continue;
       }
 
+#if HAZE_WALK_SPLITS
+      if (next_sample && split_left > 0u) {
+        // The next walk from the saved vertex: the shadow state's walk step, with nothing pending.
+        split_left -= 1u;
+        x = split_x;
+        d = split_d;
+        beta = split_beta;
+        g = split_g;
+        beta_start = split_beta_start;
+        depth = 1u;
+        on_surface = false;
+        pending = vec3(0.0f);
+        state = ST_SHADOW;
+        known.T = Trans(0.0f);
+        q_known = true;
+        continue;
+      }
+#endif
       if (next_sample) break;
     }
 
