@@ -154,6 +154,7 @@ struct Render {
   std::vector<float> L, var_of_mean;
   double trace_ms = 0;
   render::FrameCounters counters;
+  json walk_splits;  // render.walk_splits 0: the learned K* and its statistics
 };
 
 Render resolved(render::Renderer& r, int spp) {
@@ -167,6 +168,7 @@ Render resolved(render::Renderer& r, int spp) {
     }
   for (double ms : r.pass_stats().at("trace").ms) out.trace_ms += ms;
   out.counters = img.counters;
+  out.walk_splits = r.walk_splits_stats();
   return out;
 }
 
@@ -176,14 +178,18 @@ Render render_case(gpu::Context& ctx, const scene::Scene& s, int spp) {
   return resolved(r, spp);
 }
 
-// Both sides of one seed, their samples interleaved one by one, so that the machine's drift over the
-// render touches both alike.
+// Both sides of one seed in kRounds alternating blocks of about equal time (a's samples in equal parts, b's
+// likewise), so that the machine's drift over the render touches both alike. Each switch to the other side
+// costs the next dispatch: on lavapipe a shaft dispatch of volpath took 3.1 ms in a run of its own and 4.2 ms
+// right after one of the default's. Alternating one dispatch at a time charged that to every dispatch of the
+// side with fewer samples and to fewer of the other's; blocks charge both kRounds times, a few percent.
 std::pair<Render, Render> render_pair(gpu::Context& ctx, const scene::Scene& a, int spp_a,
                                       const scene::Scene& b, int spp_b) {
+  constexpr int kRounds = 4;
   render::Renderer ra(ctx, a), rb(ctx, b);
-  for (int i = 0; i < std::max(spp_a, spp_b); ++i) {
-    if (i < spp_a) ra.add_samples(1);
-    if (i < spp_b) rb.add_samples(1);
+  for (int r = 1; r <= kRounds; ++r) {
+    ra.add_samples(spp_a * r / kRounds - spp_a * (r - 1) / kRounds);
+    rb.add_samples(spp_b * r / kRounds - spp_b * (r - 1) / kRounds);
   }
   return {resolved(ra, spp_a), resolved(rb, spp_b)};
 }
@@ -200,15 +206,17 @@ double ms_per_sample(gpu::Context& ctx, const scene::Scene& s, int n) {
 }
 
 json side_json(const std::vector<double>& relmse, const std::vector<double>& ms, int spp,
-               const render::FrameCounters& c, double pixels) {
+               const render::FrameCounters& c, double pixels, const json& walk_splits) {
   const double samples = pixels * spp * double(relmse.size());
-  return {{"spp", spp},
-          {"relmse", relmse},
-          {"trace_ms", ms},
-          {"lookups_per_sample", double(c.lookups) / samples},
-          {"real_collisions_per_sample", double(c.delta_real) / samples},
-          {"null_share", c.null_share()},
-          {"discarded", c.discarded_json()}};
+  json j = {{"spp", spp},
+            {"relmse", relmse},
+            {"trace_ms", ms},
+            {"lookups_per_sample", double(c.lookups) / samples},
+            {"real_collisions_per_sample", double(c.delta_real) / samples},
+            {"null_share", c.null_share()},
+            {"discarded", c.discarded_json()}};
+  if (!walk_splits.empty()) j["walk_splits"] = walk_splits;  // per seed
+  return j;
 }
 
 double mean(const std::vector<double>& v) {
@@ -225,6 +233,7 @@ json run_case(gpu::Context& ctx, const Case& c, const EfficiencyOptions& o) {
   const int ref_spp = spp_a * o.reference_factor;
   const Render ref = render_case(ctx, make(c.scene, kDefault, 4000000007u), ref_spp);
   std::vector<double> err_a, err_b, t_a, t_b, ratios;
+  json splits_a = json::array(), splits_b = json::array();
   render::FrameCounters counters = ref.counters, counters_a, counters_b;
   for (int seed = 1; seed <= o.seeds; ++seed) {
     const auto [a, b] = render_pair(ctx, make(c.scene, c.a, uint32_t(seed)), spp_a,
@@ -236,6 +245,8 @@ json run_case(gpu::Context& ctx, const Case& c, const EfficiencyOptions& o) {
     ratios.push_back((err_b.back() * t_b.back()) / (err_a.back() * t_a.back()));
     counters_a += a.counters;
     counters_b += b.counters;
+    if (!a.walk_splits.empty()) splits_a.push_back(a.walk_splits);
+    if (!b.walk_splits.empty()) splits_b.push_back(b.walk_splits);
   }
   // Efficiency 1 / (relMSE x time): a over b is b's mean relMSE x mean time over a's.
   const double ratio = (mean(err_b) * mean(t_b)) / (mean(err_a) * mean(t_a));
@@ -246,8 +257,8 @@ json run_case(gpu::Context& ctx, const Case& c, const EfficiencyOptions& o) {
           {"what", c.what},
           {"size", {c.width, c.height}},
           {"sides", {c.a_name, c.b_name}},
-          {c.a_name, side_json(err_a, t_a, spp_a, counters_a, pixels)},
-          {c.b_name, side_json(err_b, t_b, spp_b, counters_b, pixels)},
+          {c.a_name, side_json(err_a, t_a, spp_a, counters_a, pixels, splits_a)},
+          {c.b_name, side_json(err_b, t_b, spp_b, counters_b, pixels, splits_b)},
           {"time_per_sample_b_over_a", ms_b / ms_a},
           {"reference_spp", ref_spp},
           {"reference_trace_ms", ref.trace_ms},

@@ -475,6 +475,9 @@ Context::Context(const ContextOptions& options)
     features_.subgroup_size_control = w13.subgroupSizeControl;
     features_.timestamps = timestamp_bits_ > 0;
     features_.subgroup_size = subgroup.subgroupSize;
+    features_.subgroup_arithmetic = (subgroup.supportedStages & VK_SHADER_STAGE_COMPUTE_BIT) &&
+                                    (subgroup.supportedOperations & VK_SUBGROUP_FEATURE_BASIC_BIT) &&
+                                    (subgroup.supportedOperations & VK_SUBGROUP_FEATURE_ARITHMETIC_BIT);
 
     std::vector<const char*> dev_exts = {VK_KHR_PUSH_DESCRIPTOR_EXTENSION_NAME};
     if (atomic_float) dev_exts.push_back(VK_EXT_SHADER_ATOMIC_FLOAT_EXTENSION_NAME);
@@ -637,6 +640,7 @@ nlohmann::json Context::describe() const {
             {"buffer_int64_atomics", features_.buffer_int64_atomics},
             {"atomic_float_add", features_.atomic_float_add},
             {"subgroup_size_control", features_.subgroup_size_control},
+            {"subgroup_arithmetic", features_.subgroup_arithmetic},
             {"timestamps", features_.timestamps}}}};
 }
 

@@ -43,7 +43,8 @@ struct DeviceFeatures {
   bool buffer_device_address = false, buffer_int64_atomics = false;
   bool atomic_float_add = false;  // VK_EXT_shader_atomic_float, buffer float32 atomicAdd
   bool subgroup_size_control = false;
-  bool timestamps = false;  // the queue writes timestamps
+  bool subgroup_arithmetic = false;  // compute shaders' subgroupAdd and subgroupElect
+  bool timestamps = false;           // the queue writes timestamps
   uint32_t subgroup_size = 0;
 };
 

@@ -164,7 +164,7 @@ struct Renderer::Readback {
 };
 
 Renderer::Renderer(gpu::Context& ctx, const scene::Scene& s, uint32_t frame, const scene::Scene* prev)
-    : ctx_(ctx), scene_(s), media_(ctx), surfaces_(ctx), lights_(ctx), guide_(ctx) {
+    : ctx_(ctx), scene_(s), media_(ctx), surfaces_(ctx), lights_(ctx), guide_(ctx), walk_splits_(ctx) {
   ring_ = std::make_unique<gpu::FrameRing>(ctx, "renderer", 2, 64);
   ring_->on_times([this](const std::vector<gpu::TimerScope>& t) { add_pass_times(t); });
   shaders_at_start_ = ctx.shaders().stats();
@@ -215,6 +215,8 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   // estimator's distance sampling on camera rays (volpath has none).
   const bool guided = s.guiding.enabled && media_.any() && lights_.any() && s.render.estimator == "default";
   guide_.update(s.guiding, uint32_t(s.render.width), uint32_t(s.render.height), guided, fresh);
+  // Several walks from the camera sample's first medium vertex share its tracking and NEE.
+  walk_splits_.update(s, s.render.estimator == "default" && s.render.max_depth > 1 && media_.any(), fresh);
 
   // The scene block: the camera and settings here, each part's share from the part.
   glsl::GpuScene g{};
@@ -285,16 +287,14 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
     // pbrt's walk samples the phase function alone; the default's mixes in a lobe towards the sun.
     if (s.render.max_depth > 1 && s.lights.sun && media_.any() && s.render.sun_walk_probability > 0.f)
       t.define("HAZE_SUN_WALK");
-    // Several walks from the camera sample's first medium vertex share its tracking and NEE.
-    if (s.render.max_depth > 1 && media_.any() && s.render.walk_splits > 1)
-      t.define("HAZE_WALK_SPLITS", std::to_string(s.render.walk_splits));
+    walk_splits_.declare(t);
   }
   // Walk rays (more than one event) reach the environment and emissive triangles, which NEE samples too.
   if (s.render.mis == "power" && s.render.max_depth > 1 && (lights_.has_environment() || lights_.has_area()))
     t.define("HAZE_MIS");
   surfaces_.declare(t);
   guide_.declare(t);
-  trace_ = kernel(std::move(t.push(4)));
+  trace_ = kernel(std::move(t.push(8)));
   gpu::KernelDecl r("volume/resolve.comp");
   accum_.declare(r);
   out_.declare(r);
@@ -381,6 +381,11 @@ void Renderer::keep_svgf(std::unique_ptr<denoise::Svgf>& svgf, const char* name,
   }
 }
 
+nlohmann::json Renderer::walk_splits_stats() const {
+  ring_->finish();
+  return walk_splits_.stats();
+}
+
 bool Renderer::has_feature(std::string_view name) const {
   return trace_.decl().defined("HAZE_" + std::string(name));
 }
@@ -395,6 +400,7 @@ gpu::Bindings Renderer::frame_bindings() const {
   lights_.bind(b);
   surfaces_.bind(b);
   guide_.bind(b);
+  walk_splits_.bind(b);
   return b;
 }
 
@@ -474,15 +480,16 @@ void Renderer::record_samples(VkCommandBuffer cmd, gpu::Timer* timer, int n) {
   const gpu::Bindings b = frame_bindings();
   update_block(cmd);
   for (int i = 0; i < n; ++i) {
-    uint32_t sample_index = uint32_t(samples_);
+    const uint32_t push[2] = {uint32_t(samples_), walk_splits_.index()};
     if (samples_ == 0) start_frame(cmd, timer);
     // A sample adds to the sums the one before it wrote (in the same command buffer).
     if (i > 0 && !guide_.active()) gpu::compute_barrier(cmd);
     if (timer) timer->begin(cmd, "trace");
-    trace_.dispatch(cmd, b, &sample_index, gx, gy);
+    trace_.dispatch(cmd, b, push, gx, gy);
     // The next sample reads the states this one wrote (histogram: folded after the dispatch).
     if (guide_.active()) gpu::compute_barrier(cmd);
     guide_.after_sample(cmd, scene_buf_);
+    walk_splits_.after_sample(cmd);
     if (timer) timer->end(cmd);
     ++samples_;
   }
@@ -770,6 +777,7 @@ nlohmann::json Renderer::stats() const {
   j["notes"] = notes();
   const auto& maj = media_.host().majorant;
   j["majorant_resolution"] = {maj.res.x, maj.res.y, maj.res.z};
+  if (walk_splits_.learned()) j["walk_splits"] = walk_splits_.stats();
   return j;
 }
 

@@ -20,6 +20,7 @@
 #include "guiding/guide.hpp"
 #include "guiding/volume_motion.hpp"
 #include "lights/lights.hpp"
+#include "render/walk_splits.hpp"
 #include "scene/scene.hpp"
 #include "surfaces/device_surfaces.hpp"
 #include "volume/media.hpp"
@@ -170,6 +171,8 @@ class Renderer {
   const denoise::Svgf* volume_denoiser() const { return svgf_volume_.get(); }
   const guiding::VolumeMotion* volume_motion() const { return volume_motion_.get(); }
   const guiding::Guide& guide() const { return guide_; }
+  // render.walk_splits 0: the learned K* and its statistics (waits for the device); else empty.
+  nlohmann::json walk_splits_stats() const;
   const scene::Scene& scene() const { return scene_; }
   // Whether every kernel of the current scene is ready (false while a deferred compile runs, gpu/kernel.hpp).
   bool ready() const;
@@ -203,6 +206,7 @@ class Renderer {
   surfaces::DeviceSurfaces surfaces_;
   lights::Lights lights_;
   guiding::Guide guide_;
+  WalkSplits walk_splits_;
   std::unique_ptr<denoise::Svgf> svgf_surface_;           // scenes with surfaces, denoise.surface.enabled
   std::unique_ptr<denoise::Svgf> svgf_volume_;            // scenes with media, denoise.volume.enabled
   std::unique_ptr<guiding::VolumeMotion> volume_motion_;  // for the volume instance and guiding's reuse

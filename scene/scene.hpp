@@ -160,7 +160,7 @@ struct RenderSettings {
   float sun_walk_g = 0.6f;
   // The default estimator's walks from a camera sample's first medium vertex, each with 1/K of its
   // throughput.
-  int walk_splits = 1;
+  int walk_splits = 0;  // 0: learned
   // "default": haze's estimator (docs/rendering.md); "volpath": pbrt-v4's VolPathIntegrator for grey media,
   // the baseline of the efficiency benchmark.
   std::string estimator = "default";
@@ -401,9 +401,10 @@ void reflect(V& v, RenderSettings& r) {
   v.field("sun_walk_g", r.sun_walk_g, Range{0, 0.95},
           "Henyey-Greenstein g of the walk's sun lobe (sun_walk_probability)");
   v.field(
-      "walk_splits", r.walk_splits, Range{1, 16},
+      "walk_splits", r.walk_splits, Range{0, 16},
       "default estimator, multiple scattering: walks started from each camera sample's first medium vertex, "
-      "each with 1/K of its throughput (they share the camera ray's tracking and that vertex's NEE; 1: one)");
+      "each with 1/K of its throughput (they share the camera ray's tracking and that vertex's NEE; 1: one; "
+      "0: K learned from the variances and costs of earlier samples)");
   v.field("estimator", r.estimator, Choices{"default", "volpath"},
           "default: haze's estimator; volpath: pbrt-v4's VolPathIntegrator (delta tracking, NEE at every "
           "collision), the efficiency benchmark's baseline");

@@ -19,4 +19,5 @@ using uint = glm::uint;
 #include "shaders/lights/light_layout.glsl"
 #include "shaders/surfaces/bvh_layout.glsl"
 #include "shaders/volume/gpu_scene.glsl"
+#include "shaders/volume/walk_splits_layout.glsl"
 }  // namespace haze::glsl

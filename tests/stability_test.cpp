@@ -156,6 +156,9 @@ INSTANTIATE_TEST_SUITE_P(
         ExtremeCase{"walk_splits_max",
                     {{"media", cloud({{"albedo", {1, 1, 1}}})},
                      {"render", {{"max_depth", 64}, {"walk_splits", 16}}}}},
+        ExtremeCase{
+            "walk_splits_learned",
+            {{"media", cloud({{"albedo", {1, 1, 1}}})}, {"render", {{"max_depth", 64}, {"walk_splits", 0}}}}},
         ExtremeCase{"volpath", volpath(json::object())},
         ExtremeCase{"volpath_density_1e-6", volpath(density(1e-6))},
         ExtremeCase{"volpath_density_1e6", volpath(density(1e6))},

@@ -16,8 +16,11 @@
 // tracker (and its single density-lookup call site) is inlined once.
 #extension GL_GOOGLE_include_directive : require
 #extension GL_EXT_control_flow_attributes : require
-#if HAZE_GUIDE_ATOMIC_FLOAT
+#if HAZE_GUIDE_ATOMIC_FLOAT || HAZE_SPLIT_ATOMIC_FLOAT
 #extension GL_EXT_shader_atomic_float : require
+#endif
+#if HAZE_SPLIT_SUBGROUP
+#extension GL_KHR_shader_subgroup_arithmetic : require
 #endif
 
 layout(local_size_x = 8, local_size_y = 8) in;
@@ -56,6 +59,9 @@ void counter_add(uint c, uint v) {
 
 #include "lights/lights.glsl"
 #include "volume/medium.glsl"
+#if HAZE_WALK_SPLITS_AUTO
+#include "volume/walk_splits.glsl"
+#endif
 #if HAZE_SURFACES
 #include "surfaces/material.glsl"
 #endif
@@ -81,6 +87,7 @@ layout(std430, binding = BINDING_guide_states) buffer GuideStates {
 
 layout(push_constant) uniform Push {
   uint sample_index;
+  uint split_index;  // learned walk splits: dispatches since their statistics were emptied
 }
 pc;
 
@@ -277,6 +284,16 @@ void main() {
   // What this sample's tracking did and what it cut, added to the frame's counters once at the end.
   uint n_lookups = 0u, n_real = 0u, n_null = 0u, n_distance = 0u, n_guided = 0u;
   bool step_capped = false, violated = false;
+#if HAZE_WALK_SPLITS_AUTO
+  uint walk_K = walk_splits_choose(pc.sample_index, scene.counts.w);
+  bool split_learning = walk_splits_learning(pc.split_index, W * H);
+  // What the dispatch learns from: the walks' lookups, and the sum over passes of the walks' sample
+  // variance (of their contributions' channel sums, at full throughput).
+  uint split_lookups = 0u;
+  float split_S = 0.0f;
+#elif HAZE_WALK_SPLITS
+  const uint walk_K = uint(HAZE_WALK_SPLITS);
+#endif
 
 #if !HAZE_VOLPATH
   // Distance sampling on the camera ray: q(t) = (1 - P) [p_base q_base(t) + p_ea q_ea(t)] + P q_guide(t),
@@ -395,6 +412,10 @@ void main() {
     uint split_left = 0u;     // walks still to start from it
     vec3 split_x = vec3(0.0f), split_d = vec3(0.0f), split_beta = vec3(0.0f);
     float split_g = 0.0f, split_beta_start = 0.0f;
+#if HAZE_WALK_SPLITS_AUTO
+    uint split_lookups0 = 0u;                                    // n_lookups when the walks started
+    float split_mark = 0.0f, split_sum = 0.0f, split_sq = 0.0f;  // of the walks' channel sums
+#endif
 #endif
     to_surface = false;
     d = cam_d;
@@ -646,13 +667,17 @@ void main() {
 #endif
           } else {
 #if HAZE_WALK_SPLITS
-            // The camera sample's first medium vertex starts HAZE_WALK_SPLITS walks, each with 1/K of the
-            // throughput (and of the roulette's yardstick, so that each walk's roulette is an unsplit one's).
+            // The camera sample's first medium vertex starts K walks, each with 1/K of the throughput (and
+            // of the roulette's yardstick, so that each walk's roulette is an unsplit one's).
             if (depth == 1u && !split_done) {
               split_done = true;
-              split_left = uint(HAZE_WALK_SPLITS) - 1u;
-              beta *= 1.0f / float(HAZE_WALK_SPLITS);
-              beta_start *= 1.0f / float(HAZE_WALK_SPLITS);
+              split_left = walk_K - 1u;
+              beta *= 1.0f / float(walk_K);
+              beta_start *= 1.0f / float(walk_K);
+#if HAZE_WALK_SPLITS_AUTO
+              split_lookups0 = n_lookups;
+              split_mark = L_vol.x + L_vol.y + L_vol.z;
+#endif
               split_x = x;
               split_d = d;
               split_beta = beta;
@@ -864,6 +889,12 @@ void main() {
       if (next_sample && split_left > 0u) {
         // The next walk from the saved vertex: the shadow state's walk step, with nothing pending.
         split_left -= 1u;
+#if HAZE_WALK_SPLITS_AUTO
+        float c = (L_vol.x + L_vol.y + L_vol.z - split_mark) * float(walk_K);
+        split_sum += c;
+        split_sq += c * c;
+        split_mark = L_vol.x + L_vol.y + L_vol.z;
+#endif
         x = split_x;
         d = split_d;
         beta = split_beta;
@@ -880,6 +911,16 @@ void main() {
 #endif
       if (next_sample) break;
     }
+#if HAZE_WALK_SPLITS_AUTO
+    if (split_done) {
+      float c = (L_vol.x + L_vol.y + L_vol.z - split_mark) * float(walk_K);
+      split_sum += c;
+      split_sq += c * c;
+      split_lookups += n_lookups - split_lookups0;
+      if (walk_K > 1u)
+        split_S += max((split_sq - split_sum * split_sum / float(walk_K)) / float(walk_K - 1u), 0.0f);
+    }
+#endif
 
 #if HAZE_VOLPATH
     // The path's first medium vertex is the virtual point.
@@ -976,5 +1017,10 @@ void main() {
   acc_emit[pixel] += vec4(E_surf, 0.0f);
 #endif
   if (clamped) counter_add(COUNT_CLAMPED_SQUARES, 1u);
+#if HAZE_WALK_SPLITS_AUTO
+  if (split_learning)
+    walk_splits_learn(pixel, walk_K, L.x + L.y + L.z, split_S, float(n_lookups - split_lookups),
+                      float(split_lookups) / float(walk_K));
+#endif
   acc_vp[pixel] += vec4(vp_wt, vp_w, vp_g, vp_gn);
 }
