@@ -194,11 +194,12 @@ std::pair<Render, Render> render_pair(gpu::Context& ctx, const scene::Scene& a, 
   return {resolved(ra, spp_a), resolved(rb, spp_b)};
 }
 
-// Mean GPU time of one trace dispatch over `n` samples, after a warm-up sample (lavapipe compiles a pipeline
-// at its first dispatch).
+// Mean GPU time of one trace dispatch over `n` samples, after warm-up samples: lavapipe compiles a pipeline
+// at its first dispatch, and learned walk splits take two walks until their statistics hold variances (the
+// third dispatch); timed from there, the equal-time sample count of b is that of a's steady state.
 double ms_per_sample(gpu::Context& ctx, const scene::Scene& s, int n) {
   render::Renderer r(ctx, s);
-  r.add_samples(1);
+  r.add_samples(int(glsl::SPLIT_EXPLORE));
   const size_t warm = r.pass_stats().at("trace").ms.size();
   r.add_samples(n);
   const auto& ms = r.pass_stats().at("trace").ms;
