@@ -51,8 +51,11 @@ void walk_splits_learn(uint pixel, uint K, float Y, float S, float cost_camera, 
   float w = 1.0f / (m * m + SPLIT_EPS2);
   float dY = Y - p.z;
   float V_b = 0.5f * dY * dY - 0.5f * S * (1.0f / float(K) + 1.0f / p.w);
-  split_learn_add(SPLIT_WV_WALK, min(w * S, 1e30f));
-  split_learn_add(SPLIT_WV_BETWEEN, clamp(w * V_b, -1e30f, 1e30f));
+  // A sample too large for float sums teaches nothing (its estimate stays in the image): one inf would
+  // leave the learned K at 1 for the rest of the run.
+  if (!(w * S < 1e30f) || !(abs(w * V_b) < 1e30f)) return;
+  split_learn_add(SPLIT_WV_WALK, w * S);
+  split_learn_add(SPLIT_WV_BETWEEN, w * V_b);
   split_learn_add(SPLIT_N_VAR, 1.0f);
 }
 
