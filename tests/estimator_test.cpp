@@ -913,6 +913,7 @@ TEST(Estimator, SunWalkLobeIsUnbiased) {
 // Walks split at the camera sample's first medium vertex (render.walk_splits 3, WALK_SPLITS) against one
 // walk, per pixel and channel, on a dense sunlit cloud under an environment (escaping walks add their MIS
 // share). Injected: the walks' throughput not divided by K (3x the multiple scattering): pooled z +61..+75;
+// their first directions' strata without the random offset (the walks' directions fixed): +15..+17;
 // the saved walks restarted at depth 2 instead of 1 (one event fewer allowed): not seen at max_depth 32,
 // where the last event carries nothing measurable.
 TEST(Estimator, WalkSplitsAreUnbiased) {
@@ -931,7 +932,7 @@ TEST(Estimator, WalkSplitsAreUnbiased) {
 
 // Learned walk splits (render.walk_splits 0, WALK_SPLITS_AUTO): each dispatch's K comes from earlier
 // dispatches only, so the image is one walk's, per pixel and channel. Injected: the walks' throughput not
-// divided by K: pooled z +133..+141.
+// divided by K: pooled z +133..+141; their first directions' strata without the random offset: +24..+27.
 TEST(Estimator, LearnedWalkSplitsAreUnbiased) {
   json j = sunlit_cloud_under_sky();
   auto run = [&](int K, int spp, int seed) {

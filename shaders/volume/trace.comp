@@ -412,6 +412,7 @@ void main() {
     uint split_left = 0u;     // walks still to start from it
     vec3 split_x = vec3(0.0f), split_d = vec3(0.0f), split_beta = vec3(0.0f);
     float split_g = 0.0f, split_beta_start = 0.0f;
+    float split_u = 0.0f;  // the offset of the walks' strata of their first direction
 #if HAZE_WALK_SPLITS_AUTO
     uint split_lookups0 = 0u;                                    // n_lookups when the walks started
     float split_mark = 0.0f, split_sum = 0.0f, split_sq = 0.0f;  // of the walks' channel sums
@@ -672,6 +673,7 @@ void main() {
             if (depth == 1u && !split_done) {
               split_done = true;
               split_left = walk_K - 1u;
+              split_u = rng_next(rng);
               beta *= 1.0f / float(walk_K);
               beta_start *= 1.0f / float(walk_K);
 #if HAZE_WALK_SPLITS_AUTO
@@ -686,12 +688,24 @@ void main() {
             }
 #endif
             vec3 d_in = d;
+#if HAZE_WALK_SPLITS
+            // The walks from the split vertex take their first direction's uniform from strata 1/K wide, one
+            // each at a shared random offset: each walk's direction keeps its density, and their mean varies
+            // less than that of independent ones (towards the sun or away, deeper or out).
+            float u_dir = depth == 1u ? fract(split_u + float(walk_K - 1u - split_left) / float(walk_K))
+                                      : rng_next(rng);
+#else
+            float u_dir = rng_next(rng);
+#endif
 #if HAZE_SUN_WALK
             // A mixture of the phase function and a lobe towards the sun: in dense media the walk reaches
-            // the lit side in fewer events. The weight f / pdf stays below 1 / (1 - P).
-            bool to_sun = rng_next(rng) < scene.sun_walk.x;
+            // the lit side in fewer events. The weight f / pdf stays below 1 / (1 - P). One uniform chooses
+            // the lobe and, rescaled, the angle to its axis.
+            float P_sun = scene.sun_walk.x;
+            bool to_sun = u_dir < P_sun;
+            float u_mu = to_sun ? u_dir / P_sun : (u_dir - P_sun) / (1.0f - P_sun);
             d = hg_sample(to_sun ? scene.sun_direction.xyz : d_in, to_sun ? scene.sun_walk.y : g,
-                          vec2(rng_next(rng), rng_next(rng)));
+                          vec2(min(u_mu, 0.99999994f), rng_next(rng)));
             float f = hg_phase(dot(d, d_in), g);
             float pdf = walk_phase_pdf(d, d_in, g);
             beta *= f / pdf;
@@ -699,7 +713,7 @@ void main() {
             p_walk = pdf;
 #endif
 #else
-            d = hg_sample(d_in, g, vec2(rng_next(rng), rng_next(rng)));
+            d = hg_sample(d_in, g, vec2(u_dir, rng_next(rng)));
 #if HAZE_MIS
             p_walk = hg_phase(dot(d, d_in), g);
 #endif
