@@ -952,9 +952,9 @@ TEST(Estimator, LearnedWalkSplitsAreUnbiased) {
 // The learner's split of the variance against fixed K: a grey sunlit cloud, so that a sample's channel sum is
 // 3x its red channel. The relative variance per sample at K walks, measured from the pixel sums as the
 // learner weighs it (1 / (m^2 + SPLIT_EPS2), m the pixel's mean), against V_b + V_w / K from the learned
-// totals. Measured: K 1 predicted 0.508 against 0.492, K 4 0.180 against 0.179. Injected: a third of the
-// walks' variance (their per-channel variances summed instead of the variance of the channel sum): K 4
-// predicted 0.310 against 0.179.
+// totals. Measured: K 1 predicted 0.505 against 0.487, K 4 0.172 against 0.175. Injected (before the walks'
+// first directions were stratified): a third of the walks' variance (their per-channel variances summed
+// instead of the variance of the channel sum): K 4 predicted 0.310 against 0.179.
 TEST(Estimator, LearnedSplitVariancesPredictFixedSplits) {
   json j = {{"camera", {{"position", {0, 0.3, 3.4}}, {"target", {0, 0, 0}}, {"fov_y", 40}}},
             {"media", json::array({cloud_medium(8.0, 3, {0.9, 0.9, 0.9}, 0.5)})},
