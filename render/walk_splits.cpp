@@ -82,8 +82,8 @@ nlohmann::json WalkSplits::stats() const {
           {"samples", n},
           {"relative_variance_walk", n_var > 0 ? s[glsl::SPLIT_WV_WALK] / n_var : 0.0},
           {"relative_variance_between", n_var > 0 ? s[glsl::SPLIT_WV_BETWEEN] / n_var : 0.0},
-          {"lookups_camera", n > 0 ? s[glsl::SPLIT_COST_CAMERA] / n : 0.0},
-          {"lookups_per_walk", n > 0 ? s[glsl::SPLIT_COST_WALK] / n : 0.0}};
+          {"cost_camera", n > 0 ? s[glsl::SPLIT_COST_CAMERA] / n : 0.0},
+          {"cost_per_walk", n > 0 ? s[glsl::SPLIT_COST_WALK] / n : 0.0}};
 }
 
 }  // namespace haze::render

@@ -289,7 +289,8 @@ void main() {
   bool split_learning = walk_splits_learning(pc.split_index, W * H);
   // What the dispatch learns from: the walks' lookups, and the sum over passes of the walks' sample
   // variance (of their contributions' channel sums, at full throughput).
-  uint split_lookups = 0u;
+  uint n_work = 0u,
+       split_work = 0u;  // SPLIT_QUERY_WORK per tracking query plus its lookups; the walks' share
   float split_S = 0.0f;
 #elif HAZE_WALK_SPLITS
   const uint walk_K = uint(HAZE_WALK_SPLITS);
@@ -414,7 +415,7 @@ void main() {
     float split_g = 0.0f, split_beta_start = 0.0f;
     float split_u = 0.0f;  // the offset of the walks' strata of their first direction
 #if HAZE_WALK_SPLITS_AUTO
-    uint split_lookups0 = 0u;                                    // n_lookups when the walks started
+    uint split_work0 = 0u;                                       // n_work when the walks started
     float split_mark = 0.0f, split_sum = 0.0f, split_sq = 0.0f;  // of the walks' channel sums
 #endif
 #endif
@@ -566,6 +567,9 @@ void main() {
       q_known = false;
       q_rr = rr_T;
       n_lookups += r.lookups;
+#if HAZE_WALK_SPLITS_AUTO
+      n_work += SPLIT_QUERY_WORK + r.lookups;
+#endif
       n_null += r.nulls;
       if (r.hit) n_real += 1u;
       step_capped = step_capped || r.capped;
@@ -677,7 +681,7 @@ void main() {
               beta *= 1.0f / float(walk_K);
               beta_start *= 1.0f / float(walk_K);
 #if HAZE_WALK_SPLITS_AUTO
-              split_lookups0 = n_lookups;
+              split_work0 = n_work;
               split_mark = L_vol.x + L_vol.y + L_vol.z;
 #endif
               split_x = x;
@@ -930,7 +934,7 @@ void main() {
       float c = (L_vol.x + L_vol.y + L_vol.z - split_mark) * float(walk_K);
       split_sum += c;
       split_sq += c * c;
-      split_lookups += n_lookups - split_lookups0;
+      split_work += n_work - split_work0;
       if (walk_K > 1u)
         split_S += max((split_sq - split_sum * split_sum / float(walk_K)) / float(walk_K - 1u), 0.0f);
     }
@@ -1033,8 +1037,8 @@ void main() {
   if (clamped) counter_add(COUNT_CLAMPED_SQUARES, 1u);
 #if HAZE_WALK_SPLITS_AUTO
   if (split_learning)
-    walk_splits_learn(pixel, walk_K, L.x + L.y + L.z, split_S, float(n_lookups - split_lookups),
-                      float(split_lookups) / float(walk_K));
+    walk_splits_learn(pixel, walk_K, L.x + L.y + L.z, split_S, float(n_work - split_work),
+                      float(split_work) / float(walk_K));
 #endif
   acc_vp[pixel] += vec4(vp_wt, vp_w, vp_g, vp_gn);
 }

@@ -36,7 +36,7 @@ void split_learn_add(uint i, float x) {
 }
 
 // After the sample: Y its radiance (channel sum), S the sum over its passes of its walks' sample variance
-// (V_w's estimate; K >= 2 only), cost_camera and cost_walk its lookups outside the walks and per unit of K.
+// (V_w's estimate; K >= 2 only), cost_camera and cost_walk its work outside the walks and per unit of K.
 // V_b's estimate is half the squared difference from the pixel's last sample less the walks' share of both
 // samples' variances. Both are weighed by the pixel's mean before the last sample: a mean that included
 // them would shrink the rare large samples that make up most of a dense medium's variance.

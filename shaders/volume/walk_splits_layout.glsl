@@ -13,8 +13,8 @@
 // Two slots of SPLIT_SLOT floats (binding "split_stats"): the totals of earlier dispatches, which the trace
 // reads, then what the current dispatch learns, which a fold pass adds to the totals after it. Per slot: the
 // sums over camera samples of K >= 2 dispatches of w V_w-hat and w V_b-hat (w = 1 / (m^2 + SPLIT_EPS2), m
-// the pixel's mean) and their count; over all samples, the lookups outside the walks (C_c) and per unit of K
-// (C_w), and their count.
+// the pixel's mean) and their count; over all samples, the cost outside the walks (C_c) and per unit of K
+// (C_w) in lookups, a tracking query counting SPLIT_QUERY_WORK beyond its own, and their count.
 const uint SPLIT_WV_WALK = 0u, SPLIT_WV_BETWEEN = 1u, SPLIT_N_VAR = 2u;
 const uint SPLIT_COST_CAMERA = 3u, SPLIT_COST_WALK = 4u, SPLIT_N = 5u;
 const uint SPLIT_SLOT = 8u, SPLIT_TOTALS = 0u, SPLIT_LEARN = SPLIT_SLOT;
@@ -27,6 +27,10 @@ const uint SPLIT_EXPLORE = 3u;
 const uint SPLIT_LEARN_SAMPLES = 65536u;
 // relMSE's weight (eval/metrics.hpp: 1 / (r^2 + 0.01) per channel) on the channel sums of a grey pixel.
 const float SPLIT_EPS2 = 0.09f;
+// The cost of a tracking query beyond its density lookups (the state machine's step, BVH traversals, light
+// sampling), in lookups: with 1 the walks' share of a dispatch's time came out as measured on lavapipe in
+// the room demo (C_w / C_c 0.425 against 0.42; lookups alone gave 0.13, and K 5.4 where 3 is best).
+const uint SPLIT_QUERY_WORK = 1u;
 
 HAZE_INLINE bool walk_splits_learning(uint index, uint pixels) {
   return index < SPLIT_EXPLORE + (SPLIT_LEARN_SAMPLES + pixels - 1u) / max(pixels, 1u);
