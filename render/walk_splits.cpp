@@ -72,9 +72,8 @@ void WalkSplits::after_sample(VkCommandBuffer cmd) {
 
 nlohmann::json WalkSplits::stats() const {
   if (!learned()) return nlohmann::json::object();
-  std::array<float, 2 * glsl::SPLIT_SLOT> t{};
-  stats_.download(t.data(), sizeof(t));
-  const float* s = t.data() + glsl::SPLIT_TOTALS;
+  std::array<float, glsl::SPLIT_SLOT> s{};  // the totals
+  stats_.download(s.data(), sizeof(s), glsl::SPLIT_TOTALS * 4);
   const float k = glsl::walk_splits_k(s[glsl::SPLIT_WV_WALK], s[glsl::SPLIT_WV_BETWEEN], s[glsl::SPLIT_N_VAR],
                                       s[glsl::SPLIT_COST_CAMERA], s[glsl::SPLIT_COST_WALK]);
   const double n = s[glsl::SPLIT_N], n_var = s[glsl::SPLIT_N_VAR];

@@ -910,6 +910,20 @@ TEST(Estimator, SunWalkLobeIsUnbiased) {
   expect_unbiased(two_sample_test(run(0.5, 2048, 7), run(0, 2048)), "sun lobe against phase sampling");
 }
 
+// The volume term of sunlit_cloud_under_sky with render.walk_splits K (0: learned; 1: not a line of the
+// splits' code in the kernel).
+Estimate split_cloud(int K, int spp, int seed) {
+  json k = sunlit_cloud_under_sky();
+  k["render"]["seed"] = seed;
+  k["render"]["walk_splits"] = K;
+  render::Renderer r(context(), make_scene(k));
+  EXPECT_EQ(r.has_feature("WALK_SPLITS"), K != 1);
+  EXPECT_EQ(r.has_feature("WALK_SPLITS_AUTO"), K == 0);
+  render_checked(r, spp, K == 0 ? "learned splits" : K > 1 ? "split walks" : "one walk");
+  if (K == 0) EXPECT_GE(r.walk_splits_stats().at("k").get<double>(), 1.5) << "a dense cloud pays for splits";
+  return estimate(r, glsl::ACC_VOL, glsl::ACC_VOL2, 3);
+}
+
 // Walks split at the camera sample's first medium vertex (render.walk_splits 3, WALK_SPLITS) against one
 // walk, per pixel and channel, on a dense sunlit cloud under an environment (escaping walks add their MIS
 // share). Injected: the walks' throughput not divided by K (3x the multiple scattering): pooled z +61..+75;
@@ -917,36 +931,16 @@ TEST(Estimator, SunWalkLobeIsUnbiased) {
 // the saved walks restarted at depth 2 instead of 1 (one event fewer allowed): not seen at max_depth 32,
 // where the last event carries nothing measurable.
 TEST(Estimator, WalkSplitsAreUnbiased) {
-  json j = sunlit_cloud_under_sky();
-  auto run = [&](int K, int spp, int seed) {
-    json k = j;
-    k["render"]["seed"] = seed;
-    k["render"]["walk_splits"] = K;
-    render::Renderer r(context(), make_scene(k));
-    EXPECT_EQ(r.has_feature("WALK_SPLITS"), K > 1);  // 1: not a line of its code in the kernel
-    render_checked(r, spp, K > 1 ? "split walks" : "one walk");
-    return estimate(r, glsl::ACC_VOL, glsl::ACC_VOL2, 3);
-  };
-  expect_unbiased(two_sample_test(run(3, 1024, 5), run(1, 2048, 1)), "three walks against one");
+  expect_unbiased(two_sample_test(split_cloud(3, 1024, 5), split_cloud(1, 2048, 1)),
+                  "three walks against one");
 }
 
 // Learned walk splits (render.walk_splits 0, WALK_SPLITS_AUTO): each dispatch's K comes from earlier
 // dispatches only, so the image is one walk's, per pixel and channel. Injected: the walks' throughput not
 // divided by K: pooled z +133..+141; their first directions' strata without the random offset: +24..+27.
 TEST(Estimator, LearnedWalkSplitsAreUnbiased) {
-  json j = sunlit_cloud_under_sky();
-  auto run = [&](int K, int spp, int seed) {
-    json k = j;
-    k["render"]["seed"] = seed;
-    k["render"]["walk_splits"] = K;
-    render::Renderer r(context(), make_scene(k));
-    EXPECT_EQ(r.has_feature("WALK_SPLITS_AUTO"), K == 0);
-    render_checked(r, spp, K == 0 ? "learned splits" : "one walk");
-    if (K == 0)
-      EXPECT_GE(r.walk_splits_stats().at("k").get<double>(), 1.5) << "a dense cloud pays for splits";
-    return estimate(r, glsl::ACC_VOL, glsl::ACC_VOL2, 3);
-  };
-  expect_unbiased(two_sample_test(run(0, 1024, 5), run(1, 2048, 1)), "learned splits against one walk");
+  expect_unbiased(two_sample_test(split_cloud(0, 1024, 5), split_cloud(1, 2048, 1)),
+                  "learned splits against one walk");
 }
 
 // The learner's split of the variance against fixed K: a grey sunlit cloud, so that a sample's channel sum is

@@ -287,10 +287,9 @@ void main() {
 #if HAZE_WALK_SPLITS_AUTO
   uint walk_K = walk_splits_choose(pc.sample_index, scene.counts.w);
   bool split_learning = walk_splits_learning(pc.split_index, W * H);
-  // What the dispatch learns from: the walks' lookups, and the sum over passes of the walks' sample
-  // variance (of their contributions' channel sums, at full throughput).
-  uint n_work = 0u,
-       split_work = 0u;  // SPLIT_QUERY_WORK per tracking query plus its lookups; the walks' share
+  // What the dispatch learns from: the work (SPLIT_QUERY_WORK per tracking query plus its lookups) in all
+  // and in the walks, and the sum over passes of the walks' sample variance.
+  uint n_work = 0u, split_work = 0u;
   float split_S = 0.0f;
 #elif HAZE_WALK_SPLITS
   const uint walk_K = uint(HAZE_WALK_SPLITS);
@@ -415,8 +414,8 @@ void main() {
     float split_g = 0.0f, split_beta_start = 0.0f;
     float split_u = 0.0f;  // the offset of the walks' strata of their first direction
 #if HAZE_WALK_SPLITS_AUTO
-    uint split_work0 = 0u;                                       // n_work when the walks started
-    float split_mark = 0.0f, split_sum = 0.0f, split_sq = 0.0f;  // of the walks' channel sums
+    uint split_work0 = 0u;  // n_work when the walks started
+    SplitWalks split_walks = split_walks_start(L_vol);
 #endif
 #endif
     to_surface = false;
@@ -682,7 +681,7 @@ void main() {
               beta_start *= 1.0f / float(walk_K);
 #if HAZE_WALK_SPLITS_AUTO
               split_work0 = n_work;
-              split_mark = L_vol.x + L_vol.y + L_vol.z;
+              split_walks = split_walks_start(L_vol);
 #endif
               split_x = x;
               split_d = d;
@@ -908,10 +907,7 @@ void main() {
         // The next walk from the saved vertex: the shadow state's walk step, with nothing pending.
         split_left -= 1u;
 #if HAZE_WALK_SPLITS_AUTO
-        float c = (L_vol.x + L_vol.y + L_vol.z - split_mark) * float(walk_K);
-        split_sum += c;
-        split_sq += c * c;
-        split_mark = L_vol.x + L_vol.y + L_vol.z;
+        split_walk_ended(split_walks, L_vol, walk_K);
 #endif
         x = split_x;
         d = split_d;
@@ -931,12 +927,9 @@ void main() {
     }
 #if HAZE_WALK_SPLITS_AUTO
     if (split_done) {
-      float c = (L_vol.x + L_vol.y + L_vol.z - split_mark) * float(walk_K);
-      split_sum += c;
-      split_sq += c * c;
+      split_walk_ended(split_walks, L_vol, walk_K);
       split_work += n_work - split_work0;
-      if (walk_K > 1u)
-        split_S += max((split_sq - split_sum * split_sum / float(walk_K)) / float(walk_K - 1u), 0.0f);
+      split_S += split_walks_variance(split_walks, walk_K);
     }
 #endif
 
@@ -1037,7 +1030,7 @@ void main() {
   if (clamped) counter_add(COUNT_CLAMPED_SQUARES, 1u);
 #if HAZE_WALK_SPLITS_AUTO
   if (split_learning)
-    walk_splits_learn(pixel, walk_K, L.x + L.y + L.z, split_S, float(n_work - split_work),
+    walk_splits_learn(pixel, walk_K, channel_sum(L), split_S, float(n_work - split_work),
                       float(split_work) / float(walk_K));
 #endif
   acc_vp[pixel] += vec4(vp_wt, vp_w, vp_g, vp_gn);

@@ -13,6 +13,30 @@ layout(std430, binding = BINDING_split_last) buffer SplitLast {
   vec4 split_last[];
 };
 
+float channel_sum(vec3 L) {
+  return L.x + L.y + L.z;
+}
+
+// The walks from one split vertex: the channel sum of the radiance when the current walk started, and the
+// sum and sum of squares of the finished walks' contributions at full throughput.
+struct SplitWalks {
+  float mark, sum, sq;
+};
+SplitWalks split_walks_start(vec3 L) {
+  return SplitWalks(channel_sum(L), 0.0f, 0.0f);
+}
+// A walk of the K ended with the radiance at L.
+void split_walk_ended(INOUT(SplitWalks) w, vec3 L, uint K) {
+  float c = (channel_sum(L) - w.mark) * float(K);
+  w.sum += c;
+  w.sq += c * c;
+  w.mark = channel_sum(L);
+}
+// The K walks' sample variance (0 for one walk).
+float split_walks_variance(SplitWalks w, uint K) {
+  return K > 1u ? max((w.sq - w.sum * w.sum / float(K)) / float(K - 1u), 0.0f) : 0.0f;
+}
+
 // The dispatch's K (the same for every pixel: lanes that split differently would wait for each other): K*
 // rounded up with probability equal to its fraction; 2 until the totals hold variances.
 uint walk_splits_choose(uint index, uint seed) {
