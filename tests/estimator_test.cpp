@@ -920,6 +920,9 @@ Estimate split_cloud(int K, int spp, int seed) {
   EXPECT_EQ(r.has_feature("WALK_SPLITS"), K != 1);
   EXPECT_EQ(r.has_feature("WALK_SPLITS_AUTO"), K == 0);
   render_checked(r, spp, K == 0 ? "learned splits" : K > 1 ? "split walks" : "one walk");
+  // Learned K* is 3.1-3.4 over seeds 1-6. Injected: no dispatch of K 2 while K* < 1 during learning
+  // (walk_splits_choose): seeds 1 and 4, or 2 and 5, of these six ended at K 1, one rare large sample having
+  // taken K* below 1 early, after which no walk variance was measured again.
   if (K == 0) EXPECT_GE(r.walk_splits_stats().at("k").get<double>(), 1.5) << "a dense cloud pays for splits";
   return estimate(r, glsl::ACC_VOL, glsl::ACC_VOL2, 3);
 }

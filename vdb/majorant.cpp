@@ -27,6 +27,9 @@ constexpr double kValueMargin = 1e-5;
 // Where a point on the GPU may land outside its majorant cell (float rounding in the DDA), in cells: the
 // minorant counts a medium only in cells that lie inside its box with this margin.
 constexpr double kCellSlack = 1e-3;
+// Points per axis at which a cell's mean density is estimated (any value between the bounds is a valid
+// control; the mean makes the residual small).
+constexpr int kMeanPoints = 3;
 
 float round_up(double v) {
   float f = float(v);
@@ -249,7 +252,7 @@ MajorantGrid build_majorant(const std::vector<MajorantInput>& media, int resolut
   for (int a = 0; a < 3; ++a) out.res[a] = std::max(1, int(std::lround(resolution * ext[a] / longest)));
   glm::dvec3 cell = ext / glm::dvec3(out.res);
   const size_t ncells = size_t(out.res.x) * out.res.y * out.res.z;
-  std::vector<double> acc(ncells, 0.0), acc_min(ncells, 0.0);
+  std::vector<double> acc(ncells, 0.0), acc_min(ncells, 0.0), acc_mean(ncells, 0.0);
 
   for (const Medium& m : ms) {
     if (m.scale == 0) continue;
@@ -266,7 +269,8 @@ MajorantGrid build_majorant(const std::vector<MajorantInput>& media, int resolut
     glm::dvec3 span = glm::dvec3(m.hi - m.lo + 1);
     while (B < 4096 && (span.x / B + 1) * (span.y / B + 1) * (span.z / B + 1) > double(1 << 24)) B *= 2;
     Sampler sampler(*m.g);
-    const BrickBounds bricks(*as_grid(sampler.aligned_buffer()), m.lo, m.hi, B);
+    const nanovdb::FloatGrid& grid = *as_grid(sampler.aligned_buffer());
+    const BrickBounds bricks(grid, m.lo, m.hi, B);
     out.value_min[m.index] = *std::min_element(bricks.vmin.begin(), bricks.vmin.end());
 
     // Where the medium is nonzero at most; a cell counts towards the minorant only inside it.
@@ -279,6 +283,8 @@ MajorantGrid build_majorant(const std::vector<MajorantInput>& media, int resolut
     glm::ivec3 c0 = glm::clamp(glm::ivec3(glm::floor((m.wmin - lo) / cell)) - 1, glm::ivec3(0), out.res - 1);
     glm::ivec3 c1 = glm::clamp(glm::ivec3(glm::floor((m.wmax - lo) / cell)) + 1, glm::ivec3(0), out.res - 1);
     tbb::parallel_for(tbb::blocked_range<int>(c0.z, c1.z + 1), [&](const tbb::blocked_range<int>& r) {
+      auto acc_v = grid.getAccessor();
+      auto trilinear = nanovdb::createSampler<1, decltype(acc_v), false>(acc_v);
       for (int z = r.begin(); z < r.end(); ++z)
         for (int y = c0.y; y <= c1.y; ++y)
           for (int x = c0.x; x <= c1.x; ++x) {
@@ -310,6 +316,22 @@ MajorantGrid build_majorant(const std::vector<MajorantInput>& media, int resolut
             const bool inside = glm::all(glm::greaterThanEqual(c0w, inner_min)) &&
                                 glm::all(glm::lessThanEqual(c1w, inner_max));
             if (inside && mn > 0) acc_min[k] += m.scale * double(mn);
+            // The cell's mean density from kMeanPoints^3 stratified points (zero outside the medium's boxes).
+            double sum = 0;
+            for (int i = 0; i < kMeanPoints * kMeanPoints * kMeanPoints; ++i) {
+              const glm::dvec3 f((i % kMeanPoints + 0.5) / kMeanPoints,
+                                 (i / kMeanPoints % kMeanPoints + 0.5) / kMeanPoints,
+                                 (i / (kMeanPoints * kMeanPoints) + 0.5) / kMeanPoints);
+              const glm::dvec3 w = lo + cell * (glm::dvec3(x, y, z) + f);
+              if (glm::any(glm::lessThan(w, m.clip_min)) || glm::any(glm::greaterThan(w, m.clip_max)))
+                continue;
+              const glm::dvec3 q(m.w2i * glm::dvec4(w, 1.0));
+              if (glm::any(glm::lessThan(q, glm::dvec3(m.lo))) ||
+                  glm::any(glm::greaterThan(q, glm::dvec3(m.hi))))
+                continue;
+              sum += std::max(double(trilinear(nanovdb::Vec3d(q.x, q.y, q.z))), 0.0);
+            }
+            acc_mean[k] += m.scale * sum / double(kMeanPoints * kMeanPoints * kMeanPoints);
           }
     });
   }
@@ -319,6 +341,9 @@ MajorantGrid build_majorant(const std::vector<MajorantInput>& media, int resolut
   out.sigma_min.resize(ncells);
   for (size_t i = 0; i < ncells; ++i)
     out.sigma_min[i] = acc_min[i] > 0 ? round_down(acc_min[i] * (1 - kValueMargin)) : 0.f;
+  out.sigma_mean.resize(ncells);
+  for (size_t i = 0; i < ncells; ++i)
+    out.sigma_mean[i] = std::clamp(float(acc_mean[i]), out.sigma_min[i], out.sigma_max[i]);
   return out;
 }
 

@@ -153,9 +153,10 @@ struct MajorantInput {
 struct MajorantGrid {
   glm::ivec3 res{0};
   glm::vec3 world_min{0},
-      world_max{0};              // union of the media's world bboxes (index bbox dilated by one voxel)
-  std::vector<float> sigma_max;  // res.x*res.y*res.z, x fastest
-  std::vector<float> sigma_min;  // the same cells' minorant (the control of residual ratio tracking)
+      world_max{0};               // union of the media's world bboxes (index bbox dilated by one voxel)
+  std::vector<float> sigma_max;   // res.x*res.y*res.z, x fastest
+  std::vector<float> sigma_min;   // the same cells' minorant (the control of decomposition tracking)
+  std::vector<float> sigma_mean;  // their mean density, within [min, max] (the control of ratio tracking)
   // Per input medium, the smallest value its sampler can read in its box (+inf for a medium of scale 0):
   // where none is negative, one voxel chosen by the trilinear weights estimates the density without bias.
   std::vector<float> value_min;

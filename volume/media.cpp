@@ -288,10 +288,21 @@ void Media::update(const scene::Scene& s) {
   const auto& maj = host_.majorant;
   gpu::keep_uploaded(ctx_, majorant_, hetero_, "majorant grid", "scene data", maj.sigma_max,
                      fmt::format("f32 {}x{}x{}", maj.res.x, maj.res.y, maj.res.z));
-  // Only the default estimator's ratio tracking reads the minorant (volpath is pbrt's plain tracking).
+  // Only the default estimator's trackers read the controls (volpath is pbrt's plain tracking), two pairs per
+  // cell (shaders/volume/medium.glsl): (majorant, minorant) for decomposition tracking, (mean, residual
+  // majorant) for residual ratio tracking; each tracker loads one pair per cell.
+  std::vector<glm::vec2> controls(2 * maj.sigma_min.size());
+  for (size_t i = 0; i < maj.sigma_min.size(); ++i) {
+    const float hi = maj.sigma_max[i], lo = maj.sigma_min[i], c = maj.sigma_mean[i];
+    controls[2 * i] = {hi, lo};
+    // Rounded up: c + r >= hi and c - r <= lo hold in float too (0 stays 0: no lookups where hi = lo).
+    const float r = std::max(hi - c, c - lo);
+    controls[2 * i + 1] = {c, r > 0 ? std::nextafter(r, std::numeric_limits<float>::infinity()) : 0.f};
+  }
   gpu::keep_uploaded(ctx_, minorant_, hetero_ && s.render.estimator != "volpath", "minorant grid",
-                     "scene data", maj.sigma_min,
-                     fmt::format("f32 {}x{}x{}", maj.res.x, maj.res.y, maj.res.z));
+                     "scene data", controls,
+                     fmt::format("f32 pairs (majorant, minorant), (mean, residual) {}x{}x{}", maj.res.x,
+                                 maj.res.y, maj.res.z));
 }
 
 void Media::update_motion(const scene::Scene& s, const scene::Scene& prev, bool wanted, bool velocity) {
@@ -323,7 +334,7 @@ void Media::declare(gpu::KernelDecl& k) const {
 void Media::declare_default_tracking(gpu::KernelDecl& k) const {
   if (!minorant_.valid()) return;
   k.define("HAZE_MINORANT");
-  k.buffer("minorant", minorant_.size(), 4);
+  k.buffer("minorant", minorant_.size(), 8);
   // Delta tracking skips the lookup of collisions under the control when a collision needs no more than
   // constants: one grid medium, grey, without emission.
   if (host_.media.size() == 1 && !emission_ && !chromatic_) k.define("HAZE_DECOMPOSITION");

@@ -16,8 +16,11 @@ layout(std430, binding = BINDING_majorant) readonly buffer MajorantBuffer {
 };
 #endif
 #if HAZE_MINORANT
+// Two pairs per majorant cell (volume/media.cpp): (majorant, minorant) for delta tracking's decomposition,
+// and (control, residual majorant) for residual ratio tracking: the cell's mean density c and
+// max(majorant - c, c - minorant). A tracker reads the pair its mode needs, one load per DDA step.
 layout(std430, binding = BINDING_minorant) readonly buffer MinorantBuffer {
-  float minorant[];
+  vec2 minorant[];
 };
 #endif
 
@@ -199,9 +202,12 @@ MediumSample sample_medium(vec3 x, float u, float u_voxel) {
 // the haze part from its box. Segments break at cell and box boundaries.
 struct MajorantIter {
   float t, t1;
-  float h0, h1;     // haze interval
-  float g0, g1;     // majorant-grid interval
-  float sigma_min;  // HAZE_MINORANT: the minorant of the segment maj_next returned last (0 outside the grid)
+  float h0, h1;  // haze interval
+  float g0, g1;  // majorant-grid interval
+  // HAZE_MINORANT: the pair (0 or 1, above) maj_next reads, and its value for the segment it returned last
+  // ((0, 0) outside the grid); the segment's sigma_het is then the pair's bound, x + y for pair 1.
+  uint pair;
+  vec2 control;
   ivec3 cell;
   ivec3 step;
   vec3 t_max, t_delta;
@@ -229,7 +235,8 @@ MajorantIter maj_init(vec3 o, vec3 d, float t0, float t1) {
     it.g1 = g.y;
   }
 #endif
-  it.sigma_min = 0.0f;
+  it.pair = 0u;
+  it.control = vec2(0.0f);
   it.cell = ivec3(0);
   it.step = ivec3(0);
   it.t_max = vec3(0.0f);
@@ -261,7 +268,7 @@ bool maj_next(INOUT(MajorantIter) it, OUT(float) sigma_het, OUT(float) sigma_haz
               OUT(float) t_b) {
   sigma_het = 0.0f;
   sigma_haze = 0.0f;
-  it.sigma_min = 0.0f;
+  it.control = vec2(0.0f);
   t_a = it.t;
   t_b = it.t1;
   if (!(it.t < it.t1)) return false;
@@ -278,9 +285,12 @@ bool maj_next(INOUT(MajorantIter) it, OUT(float) sigma_het, OUT(float) sigma_haz
     t_b = min(t_b, it.g0);
   } else if (t_a < it.g1) {
     ivec3 r = ivec3(scene.maj_res.xyz);
-    sigma_het = majorant[(it.cell.z * r.y + it.cell.y) * r.x + it.cell.x];
+    uint cell = uint((it.cell.z * r.y + it.cell.y) * r.x + it.cell.x);
 #if HAZE_MINORANT
-    it.sigma_min = minorant[(it.cell.z * r.y + it.cell.y) * r.x + it.cell.x];
+    it.control = minorant[2u * cell + it.pair];
+    sigma_het = it.pair == 0u ? it.control.x : it.control.x + it.control.y;
+#else
+    sigma_het = majorant[cell];
 #endif
     float t_exit = max(min(min(it.t_max.x, it.t_max.y), it.t_max.z), t_a);
     t_exit = min(t_exit, it.g1);
@@ -401,12 +411,15 @@ MediumSample grid_medium_collision() {
 #endif
 
 // Ratio tracking (default estimator) is residual ratio tracking (Novak et al. 2014): the control, the haze
-// and with HAZE_MINORANT the minorant grid's sigma_min per segment, is taken in closed form and only the
-// residual sigma_t - control is tracked, under the residual majorant sigma_maj - sigma_min (a segment where
-// both bounds meet needs no lookup). Each loop iteration does at most one lookup. rr, rr_survive: Russian
-// roulette on T below rr, surviving with rr_survive.
+// and with HAZE_MINORANT the cell's mean density c per segment, is taken in closed form and only the
+// residual sigma_t - c is tracked, under the residual majorant max(hi - c, c - lo) of the cell's bounds
+// [lo, hi] (a segment where both bounds meet needs no lookup). A residual of either sign gives the weight
+// 1 - (sigma_t - c) / residual majorant in [0, 2]; with c at the mean the residual is small on average
+// (less variance) and its majorant at most hi - lo (fewer lookups than the minorant as the control). Each
+// loop iteration does at most one lookup. rr, rr_survive: Russian roulette on T below rr, surviving with
+// rr_survive.
 TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, float rr, float rr_survive,
-                  INOUT(uint) rng) {
+                  float tau_first, INOUT(uint) rng) {
   TrackResult r;
   r.T = Trans(1.0f);
   r.hit = false;
@@ -427,11 +440,16 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
   r.violated = false;
   bool control = TRACK_CONTROL && mode == TRACK_RATIO;
   MajorantIter it = maj_init(o, d, t0, t1);
+#if HAZE_MINORANT
+  it.pair = control ? 1u : 0u;
+#endif
   float s_het = 0.0f, s_haze = 0.0f, ta = t0, tb = t0;
   float sigma_maj = 0.0f;
-  float sigma_min = 0.0f;    // the minorant's control on this segment (all channels)
+  float sigma_c = 0.0f;   // the grid's control on this segment (all channels)
+  float sigma_lo = 0.0f;  // the bounds the tracked sigma_t must keep on it (else a violation is counted)
+  float sigma_hi = 0.0f;
   float tau_control = 0.0f;  // the haze's optical depth (unscaled)
-  float tau_min = 0.0f;      // the minorant's
+  float tau_min = 0.0f;      // the grid control's
 #if HAZE_MINORANT
   // The roulette when T times the control's transmittance falls below rr, i.e. when the control's optical
   // depth passes tau_rr = log(max T / rr): a comparison per segment, not an exp. Chromatic: the haze's
@@ -445,7 +463,7 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
   float tau_rr = log(1.0f / rr);
 #endif
   float t = t0;
-  float tau_left = -log_one_minus(rng_next(rng));
+  float tau_left = tau_first >= 0.0f ? tau_first : -log_one_minus(rng_next(rng));
   bool end_done = !eval_end;
   uint steps = 0u;
   for (;;) {
@@ -461,11 +479,17 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
         sigma_maj *= scene.haze_sigma_t_color.w;
 #endif
         if (control) tau_control += s_haze * (tb - ta);
+        sigma_hi = sigma_maj;
 #if HAZE_MINORANT
-        // In every channel sigma_c >= the smallest multiplier times sigma_t of the grids.
-        sigma_min = control ? it.sigma_min * scene.maj_min.w : 0.0f;
-        sigma_maj = max(sigma_maj - sigma_min, 0.0f);
-        tau_min += sigma_min * (tb - ta);
+        if (control) {
+          // Every channel's sigma_t of the grids lies in [m_min lo, m_max hi] (m: the multipliers); with the
+          // control m_min c, m_max (c + r) - m_min c bounds the residual both ways (grey: r).
+          sigma_c = it.control.x * scene.maj_min.w;
+          sigma_maj = max(sigma_maj - sigma_c, 0.0f);
+          sigma_lo = sigma_c - sigma_maj;
+          sigma_hi = sigma_c + sigma_maj;
+        }
+        tau_min += sigma_c * (tb - ta);
         // The roulette also at each segment: where the control alone takes T below rr (deep shadow rays),
         // the query ends before its next lookup.
         if (control && tau_min + c_haze * tau_control > tau_rr) {
@@ -502,7 +526,7 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
     float u_delta = 0.0f;
     if (mode == TRACK_DELTA && !at_end) {
       u_delta = rng_next(rng) * sigma_maj;
-      if (u_delta < s_haze + it.sigma_min) {
+      if (u_delta < s_haze + it.control.y) {
         r.hit = true;
         r.t = t;
         r.ms = u_delta < s_haze ? haze_at(x) : grid_medium_collision();
@@ -521,26 +545,25 @@ TrackResult track(vec3 o, vec3 d, float t0, float t1, int mode, bool eval_end, f
     // bounds before the minorant's control is taken off.
 #if HAZE_CHROMATIC
     vec3 sigma = control ? ms.sigma_c_het : ms.sigma_c;
-    r.violated = r.violated || above_majorant(trans_max(sigma), sigma_maj + sigma_min) ||
-                 below_minorant(min(sigma.x, min(sigma.y, sigma.z)), sigma_min);
+    r.violated = r.violated || above_majorant(trans_max(sigma), sigma_hi) ||
+                 below_minorant(min(sigma.x, min(sigma.y, sigma.z)), sigma_lo);
 #else
     float sigma = control ? ms.sigma_het : ms.sigma_t;
-    r.violated =
-        r.violated || above_majorant(sigma, sigma_maj + sigma_min) || below_minorant(sigma, sigma_min);
+    r.violated = r.violated || above_majorant(sigma, sigma_hi) || below_minorant(sigma, sigma_lo);
 #endif
 #if HAZE_DECOMPOSITION
     // Delta tracking's control: the haze and the cell's minorant.
-    if (mode == TRACK_DELTA) r.violated = r.violated || below_minorant(ms.sigma_het, it.sigma_min);
+    if (mode == TRACK_DELTA) r.violated = r.violated || below_minorant(ms.sigma_het, it.control.y);
 #endif
-    sigma -= sigma_min;
+    sigma -= sigma_c;
     if (at_end) {
       r.ms = ms;
       break;
     }
     if (mode == TRACK_RATIO) {
-      // pbrt-v4 clamps the null-collision weight at 0 too; a violation is counted above.
-      // Chromatic: ratio tracking per channel under the common majorant.
-      r.T *= clamp(Trans(1.0f) - sigma / sigma_maj, 0.0f, 1.0f);
+      // pbrt-v4 clamps the null-collision weight at 0 too; a violation is counted above. Below the control
+      // the weight exceeds 1 (at most 2). Chromatic: ratio tracking per channel under the common majorant.
+      r.T *= clamp(Trans(1.0f) - sigma / sigma_maj, 0.0f, 2.0f);
 #if HAZE_MINORANT
       // The roulette sees the whole estimate, the control's transmittance so far included (on the residual's
       // T alone it comes later: more lookups than without the minorant).

@@ -285,8 +285,8 @@ void main() {
   uint n_lookups = 0u, n_real = 0u, n_null = 0u, n_distance = 0u, n_guided = 0u;
   bool step_capped = false, violated = false;
 #if HAZE_WALK_SPLITS_AUTO
-  uint walk_K = walk_splits_choose(pc.sample_index, scene.counts.w);
   bool split_learning = walk_splits_learning(pc.split_index, W * H);
+  uint walk_K = walk_splits_choose(pc.sample_index, scene.counts.w, split_learning);
   // What the dispatch learns from: the work (SPLIT_QUERY_WORK per tracking query plus its lookups) in all
   // and in the walks, and the sum over passes of the walks' sample variance.
   uint n_work = 0u, split_work = 0u;
@@ -405,7 +405,8 @@ void main() {
   known.capped = false;
   known.violated = false;
   bool q_known = false;
-  float q_rr = rr_T;  // the roulette threshold of the current ratio-tracking query
+  float q_rr = rr_T;    // the roulette threshold of the current ratio-tracking query
+  float q_tau = -1.0f;  // the query's first majorant optical depth to a tentative collision (< 0: drawn)
   for (uint pass = 0u; pass < passes; ++pass) {
 #if HAZE_WALK_SPLITS
     bool split_done = false;  // this pass's first medium vertex has saved its walks
@@ -509,6 +510,14 @@ void main() {
         q_t1 = t_s;
         q_mode = TRACK_DELTA;
         q_eval = false;
+        // The majorant walk met optical depth cam_walk.tau by cam_walk.t: a first tentative collision beyond
+        // it (by memorylessness, the rest of the exponential) is tracked from there, without stepping again
+        // through the cells before it.
+        q_tau = -log_one_minus(rng_next(rng));
+        if (q_tau >= cam_walk.tau) {
+          q_t0 = cam_walk.t;
+          q_tau -= cam_walk.tau;
+        }
       } else {
         // The majorant walk to t: q_base samples where it stops, the others walk to the t they drew (one
         // call site, one inlined DDA).
@@ -562,9 +571,10 @@ void main() {
     for (;;) {
       // The pass's first query may be known in closed form (haze_only).
       TrackResult r = known;
-      if (!q_known) r = track(q_o, q_d, q_t0, q_t1, q_mode, q_eval, q_rr, rr_T_survive, rng);
+      if (!q_known) r = track(q_o, q_d, q_t0, q_t1, q_mode, q_eval, q_rr, rr_T_survive, q_tau, rng);
       q_known = false;
       q_rr = rr_T;
+      q_tau = -1.0f;
       n_lookups += r.lookups;
 #if HAZE_WALK_SPLITS_AUTO
       n_work += SPLIT_QUERY_WORK + r.lookups;

@@ -38,13 +38,16 @@ float split_walks_variance(SplitWalks w, uint K) {
 }
 
 // The dispatch's K (the same for every pixel: lanes that split differently would wait for each other): K*
-// rounded up with probability equal to its fraction; 2 until the totals hold variances.
-uint walk_splits_choose(uint index, uint seed) {
+// rounded up with probability equal to its fraction; 2 until the totals hold variances. While learning, a
+// dispatch that would take 1 takes 2 with probability 1/2: one walk measures no walk variance, so a rare
+// large sample that took K* below 1 early would otherwise end the learning there.
+uint walk_splits_choose(uint index, uint seed, bool learning) {
   float k = walk_splits_k(split_stats[SPLIT_WV_WALK], split_stats[SPLIT_WV_BETWEEN], split_stats[SPLIT_N_VAR],
                           split_stats[SPLIT_COST_CAMERA], split_stats[SPLIT_COST_WALK]);
   if (k == 0.0f) return 2u;
   uint rng = rng_init(seed ^ 0x85ebca6bu, 0u, index);
-  return min(uint(k + rng_next(rng)), SPLIT_MAX);
+  uint K = min(uint(k + rng_next(rng)), SPLIT_MAX);
+  return learning && K < 2u && rng_next(rng) < 0.5f ? 2u : K;
 }
 
 void split_learn_add(uint i, float x) {
