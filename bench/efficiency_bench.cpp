@@ -196,7 +196,8 @@ std::pair<Render, Render> render_pair(gpu::Context& ctx, const scene::Scene& a, 
 
 // Mean GPU time of one trace dispatch over `n` samples, after warm-up samples: lavapipe compiles a pipeline
 // at its first dispatch, and learned walk splits take two walks until their statistics hold variances (the
-// third dispatch); timed from there, the equal-time sample count of b is that of a's steady state.
+// third dispatch); timed from there, the equal-time sample count of b is that of a's steady state (the
+// dispatches after those still learning, and exploring two walks where K rounds to 1, are part of it).
 double ms_per_sample(gpu::Context& ctx, const scene::Scene& s, int n) {
   render::Renderer r(ctx, s);
   r.add_samples(int(glsl::SPLIT_EXPLORE));
@@ -287,6 +288,20 @@ const std::vector<std::string>& efficiency_case_names() {
   return names;
 }
 
+namespace {
+Case make_efficiency_case(const std::string& name, double scale) {
+  return name == "dense_cloud"    ? dense_cloud(scale)
+         : name == "haze_shaft"   ? haze_shaft(scale)
+         : name == "point_in_box" ? point_in_box(scale)
+         : name == "env_cloud"    ? env_cloud(scale)
+                                  : sheets(scale);
+}
+}  // namespace
+
+json efficiency_case_scene(const std::string& name, double scale) {
+  return make_efficiency_case(name, scale).scene;
+}
+
 json bench_efficiency(gpu::Context& ctx, const EfficiencyOptions& o) {
   json out = {{"seeds", o.seeds},
               {"reference_factor", o.reference_factor},
@@ -295,11 +310,7 @@ json bench_efficiency(gpu::Context& ctx, const EfficiencyOptions& o) {
               {"cases", json::array()}};
   for (const std::string& name : efficiency_case_names()) {
     if (!o.cases.empty() && std::find(o.cases.begin(), o.cases.end(), name) == o.cases.end()) continue;
-    Case c = name == "dense_cloud"    ? dense_cloud(o.scale)
-             : name == "haze_shaft"   ? haze_shaft(o.scale)
-             : name == "point_in_box" ? point_in_box(o.scale)
-             : name == "env_cloud"    ? env_cloud(o.scale)
-                                      : sheets(o.scale);
+    Case c = make_efficiency_case(name, o.scale);
     c.a.merge_patch(o.set_a);
     out["cases"].push_back(run_case(ctx, c, o));
   }

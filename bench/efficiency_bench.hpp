@@ -24,6 +24,10 @@ struct EfficiencyOptions {
 // The case names in the order they run.
 const std::vector<std::string>& efficiency_case_names();
 
+// A case's scene (without estimator, guiding or seed) at `scale` of its size: tests render the bench's
+// scenes.
+nlohmann::json efficiency_case_scene(const std::string& name, double scale);
+
 nlohmann::json bench_efficiency(gpu::Context& ctx, const EfficiencyOptions& o);
 void print_efficiency(const nlohmann::json& j);
 

@@ -12,6 +12,7 @@
 #include <iostream>
 #include <random>
 
+#include "bench/efficiency_bench.hpp"
 #include "shaders/glsl.hpp"
 #include "temp_dir.hpp"
 #include "test_util.hpp"
@@ -990,21 +991,8 @@ TEST(Estimator, LearnedSplitVariancesPredictFixedSplits) {
 // where a uniformly lit cube of haze has V_w 27x V_b and learns K 5). Without walks (max_depth 1) or with
 // volpath nothing is learned and the kernel has none of its code.
 TEST(Estimator, LearnedSplitsStayAtOneInThinHaze) {
-  auto slab = [](double cx, double cz, double sx, double sz) {
-    return json{{"mesh", {{"kind", "box"}, {"size", {sx, 0.1, sz}}}},
-                {"transform", {{"translate", {cx, 3.05, cz}}}}};
-  };
-  json j = {{"camera", {{"position", {0, 1, 0}}, {"target", {0, 1.2, 1}}, {"fov_y", 50}}},
-            {"surfaces", json::array({slab(-10.25, 5, 19.5, 30), slab(10.25, 5, 19.5, 30),
-                                      slab(0, -2.25, 1, 15.5), slab(0, 13.25, 1, 13.5)})},
-            {"haze",
-             {{"sigma_t", 0.1},
-              {"albedo", {0.9, 0.9, 0.9}},
-              {"bounded", true},
-              {"bounds_min", {-20, -1, 0}},
-              {"bounds_max", {20, 3, 12}}}},
-            {"lights", {{"sun", {{"direction", {0, 1, 0}}, {"irradiance", 5}, {"angular_diameter", 0}}}}},
-            {"render", {{"width", 32}, {"height", 18}, {"max_depth", 2}, {"walk_splits", 0}}}};
+  json j = bench::efficiency_case_scene("haze_shaft", 0.25);  // 32 x 18, max_depth 2
+  j["render"]["walk_splits"] = 0;
   render::Renderer r(context(), make_scene(j));
   render_checked(r, 128, "learned splits in a thin shaft");
   const json st = r.walk_splits_stats();

@@ -485,6 +485,30 @@ struct Medium {
   glm::dvec3 clip_min{-1e300}, clip_max{1e300};  // zero outside
 };
 
+// Sum over media of scale * NanoVDB's trilinear density at a world point (zero outside a medium's clip box).
+struct WorldDensity {
+  const std::vector<Medium>& media;
+  std::vector<Sampler> samplers;
+  std::vector<glm::dmat4> w2i;
+  explicit WorldDensity(const std::vector<Medium>& m) : media(m) {
+    for (const auto& x : media) {
+      samplers.emplace_back(x.grid);
+      w2i.push_back(glm::inverse(x.o2w * x.grid.index_to_world));
+    }
+  }
+  // `clamp`: negative densities count as 0, as the shader counts them.
+  double operator()(glm::dvec3 p, bool clamp = false) const {
+    double sigma = 0;
+    for (size_t k = 0; k < media.size(); ++k)
+      if (glm::all(glm::greaterThanEqual(p, media[k].clip_min)) &&
+          glm::all(glm::lessThanEqual(p, media[k].clip_max))) {
+        const double v = samplers[k].trilinear(glm::dvec3(w2i[k] * glm::dvec4(p, 1.0)));
+        sigma += media[k].scale * (clamp ? std::max(v, 0.0) : v);
+      }
+    return sigma;
+  }
+};
+
 // sum over media of scale * trilinear density at world point p, against the majorant and minorant of the
 // cell containing p (of both cells where p lies on a face between them). tightest: the mean of sigma / max,
 // min_share: the mean of min / sigma, over the points where sigma > 0.
@@ -497,12 +521,7 @@ void check_conservative(const std::vector<Medium>& media, const MajorantGrid& ma
     ASSERT_LE(maj.sigma_min[i], maj.sigma_mean[i]) << i;
     ASSERT_LE(maj.sigma_mean[i], maj.sigma_max[i]) << i;
   }
-  std::vector<Sampler> samplers;
-  std::vector<glm::dmat4> w2i;
-  for (const auto& m : media) {
-    samplers.emplace_back(m.grid);
-    w2i.push_back(glm::inverse(m.o2w * m.grid.index_to_world));
-  }
+  const WorldDensity density(media);
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> u(0, 1);
   glm::dvec3 lo(maj.world_min), ext = glm::dvec3(maj.world_max) - lo, cell = ext / glm::dvec3(maj.res);
@@ -515,11 +534,7 @@ void check_conservative(const std::vector<Medium>& media, const MajorantGrid& ma
       snapped = i / 4 % 3;
       p[snapped] = lo[snapped] + cell[snapped] * std::round((p[snapped] - lo[snapped]) / cell[snapped]);
     }
-    double sigma = 0;
-    for (size_t k = 0; k < media.size(); ++k)
-      if (glm::all(glm::greaterThanEqual(p, media[k].clip_min)) &&
-          glm::all(glm::lessThanEqual(p, media[k].clip_max)))
-        sigma += media[k].scale * samplers[k].trilinear(glm::dvec3(w2i[k] * glm::dvec4(p, 1.0)));
+    const double sigma = density(p);
     glm::ivec3 c = glm::clamp(glm::ivec3(glm::floor((p - lo) / cell)), glm::ivec3(0), maj.res - 1);
     float m = maj.at(c), mn = maj.min_at(c);
     if (sigma > m && ++failures < 10)
@@ -551,12 +566,7 @@ void check_conservative(const std::vector<Medium>& media, const MajorantGrid& ma
 // points in each of up to 40 cells with a nonzero majorant: the largest error over the cells as a share of
 // the cell's range max - min.
 double cell_mean_error(const std::vector<Medium>& media, const MajorantGrid& maj, uint32_t seed) {
-  std::vector<Sampler> samplers;
-  std::vector<glm::dmat4> w2i;
-  for (const auto& m : media) {
-    samplers.emplace_back(m.grid);
-    w2i.push_back(glm::inverse(m.o2w * m.grid.index_to_world));
-  }
+  const WorldDensity density(media);
   std::vector<size_t> cells;
   for (size_t i = 0; i < maj.sigma_max.size(); ++i)
     if (maj.sigma_max[i] > maj.sigma_min[i]) cells.push_back(i);
@@ -571,14 +581,7 @@ double cell_mean_error(const std::vector<Medium>& media, const MajorantGrid& maj
                        double(k / (size_t(maj.res.x) * maj.res.y)));
     double sum = 0;
     const int n = 1024;
-    for (int i = 0; i < n; ++i) {
-      glm::dvec3 p = lo + cell * (c + glm::dvec3{u(rng), u(rng), u(rng)});
-      for (size_t m = 0; m < media.size(); ++m)
-        if (glm::all(glm::greaterThanEqual(p, media[m].clip_min)) &&
-            glm::all(glm::lessThanEqual(p, media[m].clip_max)))
-          sum += media[m].scale *
-                 std::max(0.0, double(samplers[m].trilinear(glm::dvec3(w2i[m] * glm::dvec4(p, 1.0)))));
-    }
+    for (int i = 0; i < n; ++i) sum += density(lo + cell * (c + glm::dvec3{u(rng), u(rng), u(rng)}), true);
     worst = std::max(worst, std::abs(sum / n - maj.sigma_mean[k]) / (maj.sigma_max[k] - maj.sigma_min[k]));
   }
   return worst;
