@@ -573,6 +573,7 @@ int main(int argc, char** argv) {
       scene::Scene settings = scene::from_json(j, "--set", "");
       gpu::Context ctx(co);
       nlohmann::json st = render::denoise_sequence(ctx, dn_in, dn_out, settings);
+      for (const auto& n : st["notes"]) fmt::print(stderr, "note: {}\n", n.get<std::string>());
       fmt::print(stderr, "wrote {} ({} frames)\n", dn_out, st["frames"].size());
       return ctx.validation_messages() > 0 ? 3 : 0;
     }

@@ -46,6 +46,10 @@ struct SvgfParams {
   std::string filter_sigma = "sample";  // sample (SVGF) | estimate
   // Whose sigma scales the luminance term: the centre's (SVGF) or the pair's, the same both ways.
   std::string luminance_sigma = "pair";  // pair | centre (SVGF)
+  // Width in pixels of the filter's epipolar term (0: off): taps away from the line through the pixel and the
+  // image of the scene's one sun, point or spot light are cut, so the filter smooths along light shafts and
+  // not across them.
+  float epipolar = 0.f;
   float phi_luminance = 3.f;
   float phi_depth = 40.f;
   float phi_normal = 30.f;  // degrees
@@ -65,14 +69,14 @@ inline SvgfParams volume_defaults() {
   p.luminance_sigma = "centre";
   p.feedback = "accumulated";
   p.history_witness = "output";
-  p.accumulate = 0.8f;
+  p.accumulate = 0.5f;
   p.adapt_ipr = 3.f;
   p.adapt_low = 0.056f;
   p.adapt_up = 0.904f;
   p.firefly_up = 0.959f;
   p.normal_threshold = 180.f;
   p.depth_tolerance = 0.284f;
-  p.history_test = 0.5f;
+  p.history_test = 0.25f;
   p.adapt_strength = 0.f;
   p.iterations = 3;
   p.phi_luminance = 2.5f;
@@ -82,6 +86,9 @@ inline SvgfParams volume_defaults() {
   p.variance_normal = 180.f;
   p.variance_depth = 200.f;
   p.taa_blend = 0.65f;
+  p.taa_clamp = "variance";
+  p.taa_gamma = 0.75f;
+  p.epipolar = 1.f;
   return p;
 }
 
@@ -162,6 +169,12 @@ void reflect(V& v, SvgfParams& p) {
       "the "
       "centre's, dark centres of skewed noise refuse bright neighbours that take them in: gather loses "
       "energy)");
+  v.field("epipolar", p.epipolar, Range::at_least(0),
+          "adaptive mode: width in pixels of the filter's epipolar term exp(-(e / width)^2), e the tap's "
+          "distance "
+          "from the line through the pixel and the image of the scene's one sun, point or spot light, along "
+          "which "
+          "in-scattered light varies slowly (0: off; off in scenes with another number of such lights)");
   v.field("phi_luminance", p.phi_luminance, Range::at_least(0), "luminance edge-stopping scale");
   v.field("phi_depth", p.phi_depth, Range::at_least(0), "depth edge-stopping scale");
   v.field("phi_normal", p.phi_normal, Range{0, 180}, "normal edge-stopping angle, degrees");

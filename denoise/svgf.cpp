@@ -29,6 +29,7 @@ glsl::SvgfGpuParams gpu_params(const SvgfParams& p, uint32_t W, uint32_t H, bool
                          p.spatial_bias, p.spatial_falloff);
   g.filter_phi = glm::vec4(p.phi_luminance, p.phi_depth, std::min(cos_deg(p.phi_normal), 0.9999f), 1e-4f);
   g.filter_fade = glm::vec4(p.zbias_normal, p.zbias_depth, 0, 0);
+  g.epipole = glm::vec4(0, 0, p.epipolar, 0);
   g.taa = glm::vec4(p.taa_blend, p.taa_clamp == "variance" ? 1.f : 0.f, p.taa_gamma, 0);
   g.variance_scale =
       glm::vec4(p.filter_sigma == "estimate" ? 1.f : 0.f, std::max(1.f - p.accumulate, 1e-3f), 0, 0);
@@ -95,6 +96,7 @@ void Svgf::create_kernels() {
   const uint32_t classic = params_.mode == "classic" ? 1 : 0;
   const uint32_t subsampled = params_.kernel == "subsampled" ? 1 : 0;
   const uint32_t pair = !classic && params_.luminance_sigma == "pair" ? 1 : 0;
+  const bool epipolar = epipolar_on();
   const uint64_t pixels = uint64_t(width_) * height_;
   const uint64_t blocks = uint64_t(gpu::div_up(width_, kBlock)) * gpu::div_up(height_, kBlock);
   auto decl = [&](const char* pass) {
@@ -143,6 +145,7 @@ void Svgf::create_kernels() {
   a.buffer("motion", pixels * 8).buffer("percentiles", blocks * 16).buffer("hist_colour", half4);
   a.buffer("hist_moments", moments).buffer("out_colour", half4).buffer("out_moments", half4);
   if (witness()) a.define("SVGF_HISTORY_WITNESS").buffer("prev_output", half4);
+  if (witness() && epipolar) a.define("SVGF_EPIPOLAR");  // the witness along the epipolar line
   accumulate_pass_ = make(std::move(a.push(8).specialize({classic})));
   gpu::KernelDecl v = decl("variance");
   gbuffer(v, "");
@@ -154,6 +157,7 @@ void Svgf::create_kernels() {
   gbuffer(f, "");
   gpack(f);
   f.buffer("in_colour", half4).buffer("out_colour", half4).push(4);
+  if (epipolar) f.define("SVGF_EPIPOLAR");
   weight_sum_pass_ = gpu::Kernel();
   if (splat()) {
     f.define("SVGF_SPLAT").buffer("weight_sum", pixels * 4);
@@ -195,12 +199,12 @@ void Svgf::set_params(const SvgfParams& params) {
         fmt::format("svgf.{}: history_witness \"output\" needs an instance that does not "
                     "remodulate (its output carries the albedo, its history does not)",
                     name_));
-  bool rebuild = !accumulate_pass_.valid() || params.mode != params_.mode ||
-                 params.kernel != params_.kernel || params.geometry != params_.geometry ||
-                 params.normalization != params_.normalization ||
-                 params.luminance_sigma != params_.luminance_sigma ||
-                 params.history_witness != params_.history_witness ||
-                 (params.history_test > 0) != (params_.history_test > 0);
+  bool rebuild =
+      !accumulate_pass_.valid() || params.mode != params_.mode || params.kernel != params_.kernel ||
+      params.geometry != params_.geometry || params.normalization != params_.normalization ||
+      params.luminance_sigma != params_.luminance_sigma ||
+      params.history_witness != params_.history_witness || (params.epipolar > 0) != (params_.epipolar > 0) ||
+      (params.history_test > 0) != (params_.history_test > 0);
   if (params.geometry != params_.geometry) has_history_ = false;  // the history's tests change meaning
   params_ = params;
   make_geometry_buffers();
@@ -211,8 +215,10 @@ void Svgf::set_params(const SvgfParams& params) {
                               fmt::format("svgf.{} per-frame temporaries", name_),
                               uint64_t(width_) * height_ * 4, "f32 per pixel");
   const glm::uvec4 layout = gpu_.layout_in, flags = gpu_.flags;
+  const glm::vec4 epipole = gpu_.epipole;
   gpu_ = gpu_params(params_, width_, height_, remodulate_);
   gpu_.layout_in = layout;
+  gpu_.epipole = glm::vec4(epipole.x, epipole.y, gpu_.epipole.z, epipole.w);
   gpu_.flags = glm::uvec4(gpu_.flags.x, flags.y, flags.z, flags.w);
   gpu_dirty_ = true;
   if (rebuild) create_kernels();
@@ -239,14 +245,21 @@ void Svgf::run(VkCommandBuffer cmd, gpu::Timer* timer, const SvgfInputs& in) {
                                            : "an emission input without set_emission(true)"));
   if (in.emission) check(*in.emission, in.emission_stride, in.emission_offset, 3, "emission");
   if (own) check(*in.depth, in.depth_stride, in.depth_offset, 1, "depth");
-  // The parameter buffer changes only with set_params() or the inputs' layout.
+  if (epipolar_on() && !in.epipole)
+    throw gpu::Error(fmt::format("svgf.{}: epipolar {} needs the light's image (SvgfInputs::epipole)", name_,
+                                 params_.epipolar));
+  const glm::vec4 epipole =
+      epipolar_on() ? glm::vec4(in.epipole->x, in.epipole->y, params_.epipolar, in.epipole->z) : gpu_.epipole;
+  // The parameter buffer changes only with set_params(), the inputs' layout or the light's image.
   const glm::uvec4 layout(in.colour_stride, in.colour_offset, in.motion_stride, in.motion_offset);
   const glm::uvec3 emission =
       in.emission ? glm::uvec3(in.emission_stride, in.emission_offset, 1) : glm::uvec3(0);  // w: unused
   const glm::uvec4 geometry = own ? glm::uvec4(in.depth_stride, in.depth_offset, 0, 0) : glm::uvec4(0);
   if (gpu_dirty_ || gpu_.layout_in != layout ||
-      glm::uvec3(gpu_.flags.y, gpu_.flags.z, gpu_.flags.w) != emission || gpu_.geometry != geometry) {
+      glm::uvec3(gpu_.flags.y, gpu_.flags.z, gpu_.flags.w) != emission || gpu_.geometry != geometry ||
+      gpu_.epipole != epipole) {
     gpu_.layout_in = layout;
+    gpu_.epipole = epipole;
     gpu_.flags = glm::uvec4(gpu_.flags.x, emission);
     gpu_.geometry = geometry;
     vkCmdUpdateBuffer(cmd, params_buf_.handle(), 0, sizeof(gpu_), &gpu_);

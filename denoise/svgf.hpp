@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <glm/glm.hpp>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -22,7 +23,7 @@ namespace glsl {
 using namespace glm;
 using uint = glm::uint;
 #include "shaders/denoise/svgf_layout.glsl"
-static_assert(sizeof(SvgfGpuParams) == 13 * 16);
+static_assert(sizeof(SvgfGpuParams) == 14 * 16);
 }  // namespace glsl
 
 // What an instance reads. Colour and motion are `stride` floats per pixel with the rgb (xy) at `offset`;
@@ -44,6 +45,9 @@ struct SvgfInputs {
   // They read no G-buffer.
   const gpu::Buffer* depth = nullptr;
   uint32_t depth_stride = 1, depth_offset = 0;
+  // Instances with epipolar > 0 only: this frame's image of the one light that casts the shafts, in
+  // homogeneous pixel coordinates (x, y, w; w = 0 for a direction parallel to the image plane).
+  std::optional<glm::vec3> epipole;
 };
 
 // Downloaded output: remodulated colour after TAA, the history length, and the variance of the filtered
@@ -86,6 +90,8 @@ class Svgf {
   uint32_t width() const { return width_; }
   uint32_t height() const { return height_; }
   const std::string& name() const { return name_; }
+  // The filter's epipolar term runs (epipolar > 0, adaptive mode): run() then needs SvgfInputs::epipole.
+  bool epipolar_on() const { return params_.epipolar > 0 && params_.mode != "classic"; }
   double pipeline_ms() const { return pipeline_ms_; }  // kernels this instance compiled and created
 
  private:

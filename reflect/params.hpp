@@ -367,7 +367,10 @@ class Describe : public Visitor<Describe> {
     }
     out_.push_back({path, type_name<T>(), def, c.text(), std::string(help)});
     if constexpr (Reflectable<T>) {
-      describe_into<T>(out_, path);
+      // The member's own defaults: a parent may set them apart from T's (the volume denoiser's).
+      T copy = value;
+      Describe d(out_, path);
+      reflect(d, copy);
     } else if constexpr (ReflectableVector<T>) {
       describe_into<typename T::value_type>(out_, path + "[]");
     } else if constexpr (ReflectableOptional<T>) {

@@ -186,6 +186,9 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
   // The volume instance runs where the first frame has a volume signal; it reprojects with the virtual
   // points' motion (volume_motion.X/Y) when the sequence has it and denoise.volume_motion asks for it.
   bool volume_motion_used = false;
+  // The volume instance's epipolar term needs the light's image of each frame (EXR header haze.epipole).
+  bool epipolar_used = false;
+  std::vector<std::string> notes;
   gpu::PixelLayers gbuf, prev;
   gpu::Kernel tonemap;
   gpu::Timer timer(ctx);
@@ -208,7 +211,16 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
       ldr = gpu::Buffer(ctx, "preview", "outputs", pixels * 4, "RGBA8");
       svgf = std::make_unique<denoise::Svgf>(ctx, "surface", settings.denoise.surface, W, H, true);
       if (volume_instance) {
-        svgf_volume = std::make_unique<denoise::Svgf>(ctx, "volume", settings.denoise.volume, W, H, false);
+        denoise::SvgfParams vp = settings.denoise.volume;
+        epipolar_used = vp.epipolar > 0 && vp.mode != "classic" && img.epipole.has_value();
+        if (vp.epipolar > 0 && !img.epipole) {
+          notes.push_back(fmt::format(
+              "{}: no haze.epipole in the EXR header (frames of a scene without exactly one sun, point or "
+              "spot light): the volume instance runs without its epipolar term",
+              file));
+          vp.epipolar = 0;
+        }
+        svgf_volume = std::make_unique<denoise::Svgf>(ctx, "volume", vp, W, H, false);
         volume_motion_used =
             settings.denoise.volume_motion != "surface" &&
             std::find(img.channels.begin(), img.channels.end(), "volume_motion.X") != img.channels.end();
@@ -252,6 +264,11 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
           fmt::format("{}: no volume_motion.X/Y layers, which the first frame has; a sequence has the "
                       "same layers in every frame",
                       file));
+    if (epipolar_used && !img.epipole)
+      throw Error(
+          fmt::format("{}: no haze.epipole in the EXR header, which the first frame has; a sequence "
+                      "has the same header attributes in every frame",
+                      file));
     colour.upload(in.colour);
     if (!in.emission.empty()) emission.upload(in.emission);
     volume.upload(in.volume);
@@ -277,6 +294,7 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
         vi.colour = &volume;
         vi.emission = nullptr;
         if (vp_depth.valid()) vi.depth = &vp_depth;
+        if (epipolar_used) vi.epipole = img.epipole;
         if (volume_motion_used) {
           vi.motion = &volume_motion;
           vi.motion_stride = 2;
@@ -330,7 +348,7 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
                                    {"volume_denoised.B", &planes[10]},
                                    {"volume_history.Y", &planes[11]},
                                    {"volume_denoised_variance.Y", &planes[12]}});
-    write_exr_channels(outs.stage(stem + ".exr"), W, H, layers);
+    write_exr_channels(outs.stage(stem + ".exr"), W, H, layers, img.epipole);
     write_png_rgb8(outs.stage(stem + ".png"), W, H, ldr.download_vector<uint32_t>());
     frames.push_back({{"input", file}, {"gpu_ms", total}});
   }
@@ -344,11 +362,13 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
       // The volume instance: null where it did not run, else its settings and motion.
       {"volume_denoise", svgf_volume
                              ? nlohmann::json{{"settings", scene::to_json(settings)["denoise"]["volume"]},
-                                              {"motion", volume_motion_used ? "virtual_points" : "surface"}}
+                                              {"motion", volume_motion_used ? "virtual_points" : "surface"},
+                                              {"epipolar_term", epipolar_used}}
                              : nlohmann::json()},
       {"frames", frames},
       {"passes", passes},
-      {"memory", ctx.ledger().to_json()}};
+      {"memory", ctx.ledger().to_json()},
+      {"notes", notes}};
   write_json(outs.stage("stats.json"), st);
   outs.commit();
   return st;

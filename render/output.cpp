@@ -5,6 +5,7 @@
 #include <OpenEXR/ImfHeader.h>
 #include <OpenEXR/ImfInputFile.h>
 #include <OpenEXR/ImfOutputFile.h>
+#include <OpenEXR/ImfVecAttribute.h>
 #include <fmt/format.h>
 #include <stb/stb_image_write.h>
 #include <unistd.h>
@@ -107,6 +108,8 @@ const std::vector<Layer>& exr_layers() {
 
 namespace {
 
+constexpr const char* kEpipoleAttribute = "haze.epipole";
+
 std::string temp_path_for(const std::string& path) {
   fs::path p(path);
   return (p.parent_path() / fmt::format(".{}.tmp{}", p.filename().string(), getpid())).string();
@@ -129,9 +132,12 @@ void atomic_write(const std::string& path, F&& write) {
 }  // namespace
 
 void write_exr_channels(const std::string& path, int width, int height,
-                        const std::vector<std::pair<std::string, const std::vector<float>*>>& channels) {
+                        const std::vector<std::pair<std::string, const std::vector<float>*>>& channels,
+                        const std::optional<glm::vec3>& epipole) {
   Imf::Header header(width, height);
   header.compression() = Imf::ZIP_COMPRESSION;
+  if (epipole)
+    header.insert(kEpipoleAttribute, Imf::V3fAttribute(Imath::V3f(epipole->x, epipole->y, epipole->z)));
   Imf::FrameBuffer fb;
   for (const auto& [name, plane] : channels) {
     if (plane->size() != size_t(width) * height)
@@ -166,7 +172,7 @@ void write_exr(const std::string& path, const Image& img) {
   const auto planes = exr_planes(img);
   std::vector<std::pair<std::string, const std::vector<float>*>> channels;
   for (const auto& [name, plane] : planes) channels.emplace_back(name, &plane);
-  write_exr_channels(path, img.width, img.height, channels);
+  write_exr_channels(path, img.width, img.height, channels, img.epipole);
 }
 
 namespace {
@@ -300,6 +306,10 @@ ExrImage read_exr(const std::string& path) {
     ExrImage img;
     img.width = dw.max.x - dw.min.x + 1;
     img.height = dw.max.y - dw.min.y + 1;
+    if (const auto* e = file.header().findTypedAttribute<Imf::V3fAttribute>(kEpipoleAttribute)) {
+      const Imath::V3f v = e->value();
+      img.epipole = glm::vec3(v.x, v.y, v.z);
+    }
     Imf::FrameBuffer fb;
     for (auto it = file.header().channels().begin(); it != file.header().channels().end(); ++it)
       img.channels.push_back(it.name());

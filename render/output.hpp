@@ -4,6 +4,7 @@
 
 #include <functional>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -28,9 +29,11 @@ const std::vector<Layer>& exr_layers();
 std::vector<std::pair<std::string, std::vector<float>>> exr_planes(const Image& img);
 void write_exr(const std::string& path, const Image& img);
 void write_png(const std::string& path, const Image& img);
-// Float channels by name ("denoised.R", ...), each width * height values; written atomically.
+// Float channels by name ("denoised.R", ...), each width * height values; written atomically. `epipole`: the
+// header attribute haze.epipole (v3f), the frame's light_epipole(), which `haze denoise` passes on.
 void write_exr_channels(const std::string& path, int width, int height,
-                        const std::vector<std::pair<std::string, const std::vector<float>*>>& channels);
+                        const std::vector<std::pair<std::string, const std::vector<float>*>>& channels,
+                        const std::optional<glm::vec3>& epipole = std::nullopt);
 // Packed RGBA8 pixels (red in the low byte, as the preview buffer holds them) written as an 8-bit RGB PNG:
 // the alpha is always 255, and tools that montage previews (oiiotool) expect three channels.
 void write_png_rgb8(const std::string& path, int width, int height, const std::vector<uint32_t>& rgba);
@@ -74,6 +77,7 @@ struct ExrImage {
   int width = 0, height = 0;
   std::vector<std::string> channels;
   std::vector<std::vector<float>> data;  // one plane per channel
+  std::optional<glm::vec3> epipole;      // the header's haze.epipole, where present
   const std::vector<float>& channel(const std::string& name) const;
 };
 ExrImage read_exr(const std::string& path);

@@ -135,6 +135,20 @@ CameraBasis camera_basis(const scene::Camera& c, const scene::RenderSettings& r)
           glm::vec4(fwd, 0)};
 }
 
+std::optional<glm::vec3> light_epipole(const scene::Scene& s) {
+  const auto& l = s.lights;
+  if ((l.sun ? 1 : 0) + l.points.size() + l.spots.size() != 1) return std::nullopt;
+  const CameraBasis cb = camera_basis(s.camera, s.render);
+  const glm::vec3 right(cb.right), up(cb.up), fwd(cb.forward);
+  // The light's direction from the camera (towards the sun; its image is the sheets' vanishing point).
+  const glm::vec3 v =
+      l.sun ? l.sun->direction
+            : (l.points.empty() ? l.spots[0].position : l.points[0].position) - s.camera.position;
+  const float w = glm::dot(v, fwd);
+  return glm::vec3((glm::dot(v, right) / glm::dot(right, right) + w) * 0.5f * float(s.render.width),
+                   (-glm::dot(v, up) / glm::dot(up, up) + w) * 0.5f * float(s.render.height), w);
+}
+
 uint32_t tonemap_op(const std::string& name) {
   return name == "aces" ? 0u : (name == "reinhard" ? 1u : 2u);
 }
@@ -309,7 +323,10 @@ void Renderer::load(const scene::Scene& s, uint32_t frame, const scene::Scene* p
   // albedo 1 and the volume motion vectors. Each keeps its history across frames of the same size.
   keep_svgf(svgf_surface_, "surface", surfaces_.any() && s.denoise.surface.enabled, s.denoise.surface, true);
   if (svgf_surface_) svgf_surface_->set_emission(emission);
-  keep_svgf(svgf_volume_, "volume", media_.any() && s.denoise.volume.enabled, s.denoise.volume, false);
+  // The epipolar term needs the scene's one light; with none or several it is off (stats: denoise_notes).
+  denoise::SvgfParams volume = s.denoise.volume;
+  if (!light_epipole(s)) volume.epipolar = 0;
+  keep_svgf(svgf_volume_, "volume", media_.any() && s.denoise.volume.enabled, volume, false);
   if (svgf_surface_ || svgf_volume_)
     tonemap_ = kernel(tonemap_decl(pixels, bool(svgf_surface_), bool(svgf_volume_)));
   const bool virtual_points = svgf_volume_ && s.denoise.volume_motion != "surface";
@@ -566,6 +583,7 @@ void Renderer::record_resolve(VkCommandBuffer cmd, gpu::Timer* timer) {
     in.depth = &vol;  // used by geometry "virtual_points"
     in.depth_stride = 4;
     in.depth_offset = glsl::OUT_VPDEPTH % 4;
+    in.epipole = light_epipole(scene_);  // this frame's camera
     svgf_volume_->run(cmd, timer, in);
   }
   if (timer) timer->begin(cmd, "tonemap");
@@ -691,8 +709,9 @@ void Renderer::resolve_async(std::function<void(Image)> done) {
   record_readback(cmd, *rb);
   // The scene may change before the frame is finished: its size is taken now.
   ring_->on_complete([this, rb, done = std::move(done), samples = samples_, w = scene_.render.width,
-                      h = scene_.render.height]() mutable {
+                      h = scene_.render.height, epipole = light_epipole(scene_)]() mutable {
     Image img = read_image(*rb, samples, w, h);
+    img.epipole = epipole;
     readbacks_.push_back(std::make_unique<Readback>(std::move(*rb)));
     done(std::move(img));
   });
@@ -702,8 +721,10 @@ void Renderer::resolve_async(std::function<void(Image)> done) {
 std::function<Image()> Renderer::record_image(VkCommandBuffer cmd) {
   std::shared_ptr<Readback> rb = take_readback();
   record_readback(cmd, *rb);
-  return [this, rb, samples = samples_, w = scene_.render.width, h = scene_.render.height]() {
+  return [this, rb, samples = samples_, w = scene_.render.width, h = scene_.render.height,
+          epipole = light_epipole(scene_)]() {
     Image img = read_image(*rb, samples, w, h);
+    img.epipole = epipole;
     readbacks_.push_back(std::make_unique<Readback>(std::move(*rb)));
     return img;
   };
@@ -778,6 +799,8 @@ nlohmann::json Renderer::stats() const {
   const auto& maj = media_.host().majorant;
   j["majorant_resolution"] = {maj.res.x, maj.res.y, maj.res.z};
   if (walk_splits_.learned()) j["walk_splits"] = walk_splits_.stats();
+  // The volume instance's epipolar term runs only with the scene's one sun, point or spot light.
+  if (svgf_volume_) j["volume_denoise"] = {{"epipolar_term", svgf_volume_->epipolar_on()}};
   return j;
 }
 

@@ -71,6 +71,7 @@ struct Image {
   std::optional<denoise::SvgfResult> volume_denoised;   // when the volume instance ran
   std::vector<glm::vec4> volume_motion;  // when computed: guiding::VolumeMotion::output() per pixel
   FrameCounters counters;                // what the frame's samples discarded, clamped and tracked
+  std::optional<glm::vec3> epipole;      // light_epipole() of the frame's camera (EXR header haze.epipole)
   float at(int x, int y, uint32_t channel) const {
     return data[(size_t(y) * width + x) * glsl::OUT_STRIDE + channel];
   }
@@ -84,6 +85,10 @@ struct CameraBasis {
   glm::vec4 position, right, up, forward;
 };
 CameraBasis camera_basis(const scene::Camera& c, const scene::RenderSettings& r);
+// The image of the scene's one sun, point or spot light in homogeneous pixel coordinates (x, y, w; pixel
+// (x / w, y / w), w = 0 for a sun direction parallel to the image plane), what the volume instance's epipolar
+// term needs; none when the scene has no such light or several.
+std::optional<glm::vec3> light_epipole(const scene::Scene& s);
 
 // Push constants of shaders/denoise/tonemap.comp: exposure 2^render.exposure and the tone curve (0 aces,
 // 1 reinhard, 2 clamp) of render.tonemap. A signal given as floats is `stride` floats per pixel with its rgb

@@ -779,6 +779,27 @@ TEST_F(Cli, DenoiseAnExrSequenceWithAVolume) {
   auto st = nlohmann::json::parse(std::ifstream(dir / "d/stats.json"));
   EXPECT_TRUE(st["passes"].contains("svgf.volume.accumulate"));
   EXPECT_EQ(st["volume_denoise"]["motion"], "virtual_points");
+  // The scene's one sun: each frame's EXR header carries its image (haze.epipole), which the volume
+  // instance's epipolar term reads, as the renderer's did (the layers above agree).
+  EXPECT_TRUE(st["volume_denoise"]["epipolar_term"].get<bool>());
+  EXPECT_TRUE(nlohmann::json::parse(std::ifstream(dir / "r/stats.json"))["volume_denoise"]["epipolar_term"]);
+  EXPECT_TRUE(haze::render::read_exr((dir / "r/frame_0001.exr").string()).epipole.has_value());
+  // Frames without it (written by another tool): the term is off, and a note says so.
+  fs::create_directories(dir / "plain");
+  for (int f = 0; f <= 2; ++f) {
+    auto a = haze::render::read_exr((dir / fmt::format("r/frame_{:04d}.exr", f)).string());
+    std::vector<std::pair<std::string, const std::vector<float>*>> all;
+    for (size_t c = 0; c < a.channels.size(); ++c) all.push_back({a.channels[c], &a.data[c]});
+    haze::render::write_exr_channels((dir / fmt::format("plain/frame_{:04d}.exr", f)).string(), a.width,
+                                     a.height, all);
+  }
+  auto plain = run(fmt::format("denoise {} --out {}", (dir / "plain").string(), (dir / "dp").string()));
+  ASSERT_EQ(plain.code, 0) << plain.out;
+  EXPECT_NE(plain.out.find("note:"), std::string::npos) << plain.out;
+  EXPECT_NE(plain.out.find("haze.epipole"), std::string::npos) << plain.out;
+  auto sp = nlohmann::json::parse(std::ifstream(dir / "dp/stats.json"));
+  EXPECT_FALSE(sp["volume_denoise"]["epipolar_term"].get<bool>());
+  EXPECT_EQ(sp["notes"].size(), 1u);
   // With the instance switched off the volume term is the noisy one and no volume layer is written.
   auto off = run(fmt::format("denoise {} --out {} --set denoise.volume.enabled=false", (dir / "r").string(),
                              (dir / "off").string()));

@@ -31,6 +31,11 @@ layout(std430, binding = BINDING_hist_moments) readonly buffer HistoryMoments {
 layout(std430, binding = BINDING_prev_output) readonly buffer PrevOutput {
   uvec2 prev_output[];
 };
+#ifdef SVGF_EPIPOLAR
+// Pixels each way along the epipolar line that the witness averages (9 in all: 5 kept 2 points more of the
+// volume's mean error on the shaft sequence).
+const int SVGF_WITNESS_REACH = 4;
+#endif
 #endif
 layout(std430, binding = BINDING_out_colour) writeonly buffer OutColour {
   uvec2 out_colour[];  // rgb, history length
@@ -301,7 +306,20 @@ void main() {
         // Sparse noise leaves many neighbourhoods all zero (no variance seen): the history's own sample
         // variance bounds the estimate from below.
         var_q = max(var_q, h.m2 - h.m1 * h.m1);
-#ifdef SVGF_HISTORY_WITNESS
+#if defined(SVGF_HISTORY_WITNESS) && defined(SVGF_EPIPOLAR)
+        // With the filter's epipolar term the output is smoothed less, and a witness of one pixel would carry
+        // that pixel's own noise again: the witness is the mean over the epipolar line through it (this
+        // frame's line at the reprojected position), smooth along the shafts and still sharp across them.
+        float Y_judged = h.Y_w, n_w = 1.0f;
+        vec2 along = epipolar_along(q);
+        for (int i = -SVGF_WITNESS_REACH; i <= SVGF_WITNESS_REACH; ++i) {
+          ivec2 wi = ivec2(floor(q + float(i) * along));
+          if (i == 0 || !inside(wi)) continue;
+          Y_judged += luminance(unpack_half4(prev_output[uint(wi.y) * W + uint(wi.x)]).rgb);
+          n_w += 1.0f;
+        }
+        Y_judged /= n_w;
+#elif defined(SVGF_HISTORY_WITNESS)
         const float Y_judged = h.Y_w;
 #else
         const float Y_judged = Y_h;

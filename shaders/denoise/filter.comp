@@ -11,6 +11,9 @@
 // reverse and the filter loses energy. Splat (SVGF_SPLAT) uses symmetric weights and divides each input by
 // the sum of the weights it gives away, W_q, computed first (specialization constant WEIGHT_SUM): out_p =
 // sum_q w_pq x_q / W_q, so the sum over pixels of the output equals the input's exactly.
+//
+// SVGF_EPIPOLAR (adaptive mode): each tap's weight also falls with its distance from the centre's epipolar
+// line (svgf_common.glsl), so the filter smooths along light shafts and not across them.
 #extension GL_GOOGLE_include_directive : require
 layout(local_size_x = 8, local_size_y = 8) in;
 layout(constant_id = 0) const uint CLASSIC = 0u;
@@ -83,7 +86,8 @@ void tap(ivec2 pix, ivec2 o, float k) {
         pow(max(0.0f, dot(centre.g.n, q.n)), P.filter_phi.z);
   } else {
 #ifdef SVGF_SPLAT
-    w = k * filter_weight_symmetric(centre, filter_centre(q, Yq, cq.w), offset, PAIR_SIGMA != 0u);
+    w = k * filter_weight_symmetric(centre, filter_centre(q, Yq, cq.w, vec2(qi) + 0.5f), offset,
+                                    PAIR_SIGMA != 0u);
     if (WEIGHT_SUM == 0u) w /= weight_sum[qp];  // the share of q's signal that reaches this pixel
 #else
     float scale = PAIR_SIGMA != 0u ? pair_luminance_scale(centre.sigma, cq.w) : centre.luminance_scale;
@@ -101,7 +105,7 @@ void main() {
   uint p = pix.y * P.size.x + pix.x;
   vec4 c = unpack_half4(in_colour[p]);
   float sigma = CLASSIC != 0u ? sqrt(prefiltered_variance(ivec2(pix))) : c.w;
-  centre = filter_centre(g_load(p), luminance(c.rgb), sigma);
+  centre = filter_centre(g_load(p), luminance(c.rgb), sigma, vec2(pix) + 0.5f);
 
   // The centre tap has weight KERNEL[0]^2 and is identical to itself.
   float k0 = KERNEL[0] * KERNEL[0];

@@ -156,10 +156,37 @@ float depth_weight(GPixel c, GPixel q, vec2 offset, float phi) {
 struct FilterCentre {
   GPixel g;
   float Y, sigma, luminance_scale, fade_n, fade_z;
+  vec2 across;  // SVGF_EPIPOLAR: unit normal of the pixel's epipolar line over the term's width (0: none)
 };
 
-FilterCentre filter_centre(GPixel g, float Y, float sigma) {
+#ifdef SVGF_EPIPOLAR
+// In-scattered light from one light varies slowly along an epipolar line, the image of a plane through the
+// camera and the light: every ray in that plane crosses the same shadow boundaries, which are lines towards
+// the light. Across the line it changes abruptly (the sheets of a light shaft). P.epipole holds the light's
+// image.
+
+// The epipolar line's unit direction at the pixel position `pix`; 0 at the light's image itself, where every
+// direction is an epipolar line.
+vec2 epipolar_along(vec2 pix) {
+  vec2 along = P.epipole.xy - pix * P.epipole.w;
+  float len = length(along);
+  return len > 1e-4f * abs(P.epipole.w) && len > 0.0f ? along / len : vec2(0.0f);
+}
+
+// The line's unit normal at `pix` divided by the filter term's width.
+vec2 epipolar_across(vec2 pix) {
+  vec2 along = epipolar_along(pix);
+  return vec2(-along.y, along.x) / P.epipole.z;
+}
+#endif
+
+FilterCentre filter_centre(GPixel g, float Y, float sigma, vec2 pix) {
   FilterCentre c;
+#ifdef SVGF_EPIPOLAR
+  c.across = epipolar_across(pix);
+#else
+  c.across = vec2(0.0f);
+#endif
   c.g = g;
   c.Y = Y;
   c.sigma = sigma;
@@ -179,12 +206,17 @@ float pair_luminance_scale(float sigma_p, float sigma_q) {
 
 // Adaptive mode's edge-stopping weight of tap q (luminance Yq, at offset o in pixels) for centre c, without
 // the kernel's own weight: exp(-(|dY| / luminance_scale)^2) times the depth and normal terms, each faded
-// towards 1 with the centre's distance.
+// towards 1 with the centre's distance, and with SVGF_EPIPOLAR exp(-(e / width)^2), e the tap's distance from
+// the centre's epipolar line.
 float filter_weight(FilterCentre c, GPixel q, float Yq, float luminance_scale, vec2 o) {
-  float x = abs(Yq - c.Y) / luminance_scale;
+  float x = abs(Yq - c.Y) / luminance_scale, x2 = x * x;
   float wz = mix(depth_weight(c.g, q, o, P.filter_phi.y), 1.0f, c.fade_z);
   float wn = mix(smoothstep(P.filter_phi.z, 1.0f, dot(c.g.n, q.n)), 1.0f, c.fade_n);
-  return exp(-x * x) * wz * wn;
+#ifdef SVGF_EPIPOLAR
+  float e = dot(o, c.across);  // the tap's distance from the centre's epipolar line over the width
+  x2 += e * e;
+#endif
+  return exp(-x2) * wz * wn;
 }
 
 // The same weight made symmetric, the geometric mean of the weights each way: what the energy-conserving

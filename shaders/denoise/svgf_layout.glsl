@@ -18,6 +18,8 @@ struct SvgfGpuParams {
   vec4 taa;        // x: blend (weight of the history), y: clamp (0 min/max, 1 mean +- gamma sigma), z: gamma
   uvec4 geometry;  // own geometry (SVGF_OWN_GEOMETRY): x, y: the input depth's float stride and offset
   vec4 variance_scale;  // x: 1 for filter_sigma "estimate" (else 0), y: the smallest alpha, max(1 - a, 1e-3)
+  vec4 epipole;  // SVGF_EPIPOLAR: x, y, w the light's image in homogeneous pixel coordinates; z: the width
+                 // of the filter's epipolar term in pixels
 };
 
 // Per-pixel words of the half-float buffers: uvec2(packHalf2x16(r, g), packHalf2x16(b, a)).
