@@ -170,11 +170,10 @@ void reflect(V& v, SvgfParams& p) {
       "centre's, dark centres of skewed noise refuse bright neighbours that take them in: gather loses "
       "energy)");
   v.field("epipolar", p.epipolar, Range::at_least(0),
-          "adaptive mode: width in pixels of the filter's epipolar term exp(-(e / width)^2), e the tap's "
-          "distance "
-          "from the line through the pixel and the image of the scene's one sun, point or spot light, along "
-          "which "
-          "in-scattered light varies slowly (0: off; off in scenes with another number of such lights)");
+          "adaptive mode: width in pixels of the filter's epipolar term exp(-(e / width)^2), e the "
+          "tap's distance from the line through the pixel and the image of the scene's one sun, point "
+          "or spot light, along which in-scattered light varies slowly (0: off; off in scenes with "
+          "another number of such lights)");
   v.field("phi_luminance", p.phi_luminance, Range::at_least(0), "luminance edge-stopping scale");
   v.field("phi_depth", p.phi_depth, Range::at_least(0), "depth edge-stopping scale");
   v.field("phi_normal", p.phi_normal, Range{0, 180}, "normal edge-stopping angle, degrees");

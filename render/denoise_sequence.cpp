@@ -264,6 +264,11 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
           fmt::format("{}: no volume_motion.X/Y layers, which the first frame has; a sequence has the "
                       "same layers in every frame",
                       file));
+    if (img.epipole && (glm::any(glm::isnan(*img.epipole)) || glm::any(glm::isinf(*img.epipole))))
+      throw Error(
+          fmt::format("{}: the header attribute haze.epipole is not finite; write the light's image in "
+                      "homogeneous pixel coordinates, or remove the attribute",
+                      file));
     if (epipolar_used && !img.epipole)
       throw Error(
           fmt::format("{}: no haze.epipole in the EXR header, which the first frame has; a sequence "

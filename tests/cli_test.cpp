@@ -800,6 +800,18 @@ TEST_F(Cli, DenoiseAnExrSequenceWithAVolume) {
   auto sp = nlohmann::json::parse(std::ifstream(dir / "dp/stats.json"));
   EXPECT_FALSE(sp["volume_denoise"]["epipolar_term"].get<bool>());
   EXPECT_EQ(sp["notes"].size(), 1u);
+  // A header attribute that is not finite: the file is named.
+  {
+    auto a = haze::render::read_exr((dir / "r/frame_0000.exr").string());
+    std::vector<std::pair<std::string, const std::vector<float>*>> all;
+    for (size_t c = 0; c < a.channels.size(); ++c) all.push_back({a.channels[c], &a.data[c]});
+    fs::create_directories(dir / "nanepi");
+    haze::render::write_exr_channels((dir / "nanepi/frame_0000.exr").string(), a.width, a.height, all,
+                                     glm::vec3(std::nanf(""), 0.f, 1.f));
+    expect_one_line_error(
+        run(fmt::format("denoise {} --out {}", (dir / "nanepi").string(), (dir / "dn").string())),
+        "frame_0000.exr");
+  }
   // With the instance switched off the volume term is the noisy one and no volume layer is written.
   auto off = run(fmt::format("denoise {} --out {} --set denoise.volume.enabled=false", (dir / "r").string(),
                              (dir / "off").string()));
