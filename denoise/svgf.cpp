@@ -29,7 +29,6 @@ glsl::SvgfGpuParams gpu_params(const SvgfParams& p, uint32_t W, uint32_t H, bool
                          p.spatial_bias, p.spatial_falloff);
   g.filter_phi = glm::vec4(p.phi_luminance, p.phi_depth, std::min(cos_deg(p.phi_normal), 0.9999f), 1e-4f);
   g.filter_fade = glm::vec4(p.zbias_normal, p.zbias_depth, 0, 0);
-  g.epipole = glm::vec4(0, 0, p.epipolar, 0);
   g.taa = glm::vec4(p.taa_blend, p.taa_clamp == "variance" ? 1.f : 0.f, p.taa_gamma, 0);
   g.variance_scale =
       glm::vec4(p.filter_sigma == "estimate" ? 1.f : 0.f, std::max(1.f - p.accumulate, 1e-3f), 0, 0);
@@ -215,10 +214,8 @@ void Svgf::set_params(const SvgfParams& params) {
                               fmt::format("svgf.{} per-frame temporaries", name_),
                               uint64_t(width_) * height_ * 4, "f32 per pixel");
   const glm::uvec4 layout = gpu_.layout_in, flags = gpu_.flags;
-  const glm::vec4 epipole = gpu_.epipole;
   gpu_ = gpu_params(params_, width_, height_, remodulate_);
   gpu_.layout_in = layout;
-  gpu_.epipole = glm::vec4(epipole.x, epipole.y, gpu_.epipole.z, epipole.w);
   gpu_.flags = glm::uvec4(gpu_.flags.x, flags.y, flags.z, flags.w);
   gpu_dirty_ = true;
   if (rebuild) create_kernels();

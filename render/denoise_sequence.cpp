@@ -212,7 +212,6 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
       svgf = std::make_unique<denoise::Svgf>(ctx, "surface", settings.denoise.surface, W, H, true);
       if (volume_instance) {
         denoise::SvgfParams vp = settings.denoise.volume;
-        epipolar_used = vp.epipolar > 0 && vp.mode != "classic" && img.epipole.has_value();
         if (vp.epipolar > 0 && !img.epipole) {
           notes.push_back(fmt::format(
               "{}: no haze.epipole in the EXR header (frames of a scene without exactly one sun, point or "
@@ -221,6 +220,7 @@ nlohmann::json denoise_sequence(gpu::Context& ctx, const std::string& in_dir, co
           vp.epipolar = 0;
         }
         svgf_volume = std::make_unique<denoise::Svgf>(ctx, "volume", vp, W, H, false);
+        epipolar_used = svgf_volume->epipolar_on();
         volume_motion_used =
             settings.denoise.volume_motion != "surface" &&
             std::find(img.channels.begin(), img.channels.end(), "volume_motion.X") != img.channels.end();
