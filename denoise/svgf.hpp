@@ -47,7 +47,7 @@ struct SvgfInputs {
   uint32_t depth_stride = 1, depth_offset = 0;
   // Instances with epipolar > 0 only: this frame's image of the one light that casts the shafts, in
   // homogeneous pixel coordinates (x, y, w; w = 0 for a direction parallel to the image plane).
-  std::optional<glm::vec3> epipole;
+  std::optional<glm::vec3> epipole = std::nullopt;
 };
 
 // Downloaded output: remodulated colour after TAA, the history length, and the variance of the filtered
