@@ -16,6 +16,7 @@
 
 #include "bench/bench_util.hpp"
 #include "bench/efficiency_bench.hpp"
+#include "bench/gather_floor.hpp"
 #include "bench/guiding_bench.hpp"
 #include "bench/light_choice_bench.hpp"
 #include "bench/shafts_bench.hpp"
@@ -83,11 +84,18 @@ double time_once(gpu::Context& ctx, gpu::Timer& timer, const Record& record) {
   return timer.read_ms().at(0).second;
 }
 
+// The kernels bench_svgf times beside the instance's passes, not part of its total.
+const char* const kYardsticks[] = {"copy", "roofline", "gather_floor"};
+bool is_yardstick(const std::string& pass) {
+  return std::find(std::begin(kYardsticks), std::end(kYardsticks), pass) != std::end(kYardsticks);
+}
+
 // Median per-pass GPU times (ms) of the surface SVGF instance over `reps` frames of a synthetic input:
 // a tilted plane with 1-spp-like noise and a slow pan, after two warm-up frames; "copy": the copy kernel,
-// recorded after each frame's passes in the same submission.
+// recorded after each frame's passes in the same submission, then "roofline" and "gather_floor".
 std::map<std::string, double> bench_svgf(gpu::Context& ctx, uint32_t W, uint32_t H, const std::string& kernel,
-                                         int reps, const CopyKernel& copy, const CopyKernel& roofline) {
+                                         int reps, const CopyKernel& copy, const CopyKernel& roofline,
+                                         const GatherFloor& gather) {
   const size_t pixels = size_t(W) * H;
   std::vector<float> colour(pixels * 3), g(pixels * glsl::G_STRIDE, 0.f);
   uint32_t rng = 1;
@@ -128,6 +136,10 @@ std::map<std::string, double> bench_svgf(gpu::Context& ctx, uint32_t W, uint32_t
       timer.begin(cmd, "svgf.bench.roofline");
       roofline.record(cmd);
       timer.end(cmd);
+      gpu::compute_barrier(cmd);
+      timer.begin(cmd, "svgf.bench.gather_floor");
+      gather.record(cmd);
+      timer.end(cmd);
     });
     auto t = timer.read_ms();
     if (i < 2) continue;
@@ -136,10 +148,9 @@ std::map<std::string, double> bench_svgf(gpu::Context& ctx, uint32_t W, uint32_t
   std::map<std::string, double> out;
   double total = 0;
   for (auto& [pass, v] : ms)
-    if (pass != "copy" && pass != "roofline") total += out[pass] = render::median(v);
+    if (!is_yardstick(pass)) total += out[pass] = render::median(v);
   out["total"] = total;
-  out["copy"] = render::median(ms.at("copy"));
-  out["roofline"] = render::median(ms.at("roofline"));
+  for (const char* y : kYardsticks) out[y] = render::median(ms.at(y));
   return out;
 }
 
@@ -366,20 +377,24 @@ json bench_svgf_sizes(gpu::Context& ctx, const std::string& sizes) {
     // The copy kernel reads and writes as many bytes as the instance's roofline moves in all.
     const size_t roofline_bytes = kSvgfRooflineRead + kSvgfRooflineWritten;
     CopyKernel roofline(ctx, size_t(dw) * dh * roofline_bytes / 8);
+    GatherFloor gather(ctx, dw, dh);
     json entry = {
         {"image_mb", double(dw) * dh * 8 / 1e6},
         {"roofline_bytes_per_pixel", {{"read", kSvgfRooflineRead}, {"written", kSvgfRooflineWritten}}},
         {"copy_ms", json::object()},
-        {"roofline_ms", json::object()}};
+        {"roofline_ms", json::object()},
+        {"gather_floor_ms", json::object()}};
     for (const char* kernel : {"5x5", "subsampled"}) {
       json k = json::object();
-      auto t = bench_svgf(ctx, dw, dh, kernel, 5, copy, roofline);
+      auto t = bench_svgf(ctx, dw, dh, kernel, 5, copy, roofline, gather);
       const double c = t.at("copy"), r = t.at("roofline");
       entry["copy_ms"][kernel] = c;
       entry["roofline_ms"][kernel] = r;
+      entry["gather_floor_ms"][kernel] = t.at("gather_floor");
       for (auto& [pass, ms] : t)
-        if (pass != "copy" && pass != "roofline") k[pass] = {{"median_ms", ms}, {"ratio_to_copy", ms / c}};
+        if (!is_yardstick(pass)) k[pass] = {{"median_ms", ms}, {"ratio_to_copy", ms / c}};
       k["total"]["ratio_to_roofline"] = t.at("total") / r;
+      k["gather_floor"]["ratio_to_copy"] = t.at("gather_floor") / c;
       entry[kernel] = k;
     }
     dn[sz] = entry;
@@ -415,6 +430,12 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
                 e["roofline_bytes_per_pixel"]["read"].get<size_t>(),
                 e["roofline_bytes_per_pixel"]["written"].get<size_t>(),
                 e["roofline_ms"][kernel].get<double>() / e["copy_ms"][kernel].get<double>()));
+        if (std::string(kernel) == "subsampled")
+          add(fmt::format("svgf.surface {} gather floor/copy", sz),
+              e[kernel]["gather_floor"]["ratio_to_copy"],
+              "the loads of one subsampled filter iteration without its math (7 taps of 16 B per pixel from "
+              "a "
+              "storage buffer, summed) / the same copy");
       }
   if (j.contains("view") && !j["view"].contains("skipped")) {
     const auto& r = j["view"]["wall_over_gpu"];

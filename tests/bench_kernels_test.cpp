@@ -6,8 +6,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <glm/gtc/packing.hpp>
+#include <random>
 
 #include "bench/bench.hpp"
+#include "bench/gather_floor.hpp"
 #include "bench/volume_repr_bench.hpp"
 #include "render/renderer.hpp"
 #include "test_util.hpp"
@@ -98,6 +101,28 @@ TEST(BenchKernels, MaxRelativeDifference) {
   EXPECT_NEAR(bench::max_relative_difference({1.f, 2.f}, {1.f, 2.002f}), 1e-3, 1e-5);
   EXPECT_TRUE(std::isinf(bench::max_relative_difference({NAN}, {1.f})));
   EXPECT_TRUE(std::isinf(bench::max_relative_difference({1.f}, {1.f, 2.f})));
+}
+
+// The SVGF gather floor (shaders/bench/gather.comp) sums the same 7 clamped taps as its CPU twin: per pixel
+// and channel within the output's half-float rounding (2^-11 relative). A kernel that dropped a tap, read the
+// wrong record or skipped the border's clamp would be off by a whole record's value.
+TEST(BenchKernels, GatherFloorSumsTheFilterTaps) {
+  const uint32_t W = 37, H = 21;  // not multiples of the 8x8 group
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(0.f, 4.f), n(-1.f, 1.f);
+  std::vector<bench::GatherRecord> rec(size_t(W) * H);
+  for (auto& r : rec)
+    r = {glm::packHalf2x16({u(rng), u(rng)}), glm::packHalf2x16({u(rng), u(rng)}),
+         glm::floatBitsToUint(u(rng)), glm::packSnorm2x16({n(rng), n(rng)})};
+  bench::GatherFloor g(context(), W, H);
+  g.upload(rec);
+  context().submit_and_wait([&](VkCommandBuffer cmd) { g.record(cmd); });
+  const std::vector<glm::vec4> gpu = g.download(), cpu = bench::gather_floor_cpu(rec, W, H);
+  ASSERT_EQ(gpu.size(), cpu.size());
+  for (size_t i = 0; i < cpu.size(); ++i)
+    for (int c = 0; c < 4; ++c)
+      ASSERT_NEAR(gpu[i][c], cpu[i][c], std::abs(cpu[i][c]) * std::ldexp(1.f, -11) + 1e-6f)
+          << "pixel " << i % W << "," << i / W << " channel " << c;
 }
 
 TEST(BenchKernels, OnlyNamesParts) {
