@@ -916,7 +916,9 @@ TEST_F(Cli, BenchReportsRatiosAsJson) {
   for (const char* kernel : {"5x5", "subsampled"}) {
     EXPECT_GT(j["svgf_surface"]["24x16"][kernel]["total"]["ratio_to_copy"].get<double>(), 0.0) << kernel;
     EXPECT_GT(j["svgf_surface"]["24x16"][kernel]["total"]["ratio_to_roofline"].get<double>(), 0.0) << kernel;
+    EXPECT_GT(j["svgf_surface"]["24x16"][kernel]["gather_floor"]["ratio_to_copy"].get<double>(), 0.0) << kernel;
   }
+  EXPECT_TRUE(j["summary"].contains("svgf.surface 24x16 gather floor/copy"));
   // The roofline moves 124 bytes per pixel (bench.cpp, kSvgfRooflineRead + kSvgfRooflineWritten).
   EXPECT_EQ(j["svgf_surface"]["24x16"]["roofline_bytes_per_pixel"]["read"].get<size_t>(), 96u);
   EXPECT_EQ(j["svgf_surface"]["24x16"]["roofline_bytes_per_pixel"]["written"].get<size_t>(), 28u);
