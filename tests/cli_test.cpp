@@ -916,7 +916,8 @@ TEST_F(Cli, BenchReportsRatiosAsJson) {
   for (const char* kernel : {"5x5", "subsampled"}) {
     EXPECT_GT(j["svgf_surface"]["24x16"][kernel]["total"]["ratio_to_copy"].get<double>(), 0.0) << kernel;
     EXPECT_GT(j["svgf_surface"]["24x16"][kernel]["total"]["ratio_to_roofline"].get<double>(), 0.0) << kernel;
-    EXPECT_GT(j["svgf_surface"]["24x16"][kernel]["gather_floor"]["ratio_to_copy"].get<double>(), 0.0) << kernel;
+    EXPECT_GT(j["svgf_surface"]["24x16"][kernel]["gather_floor"]["ratio_to_copy"].get<double>(), 0.0)
+        << kernel;
   }
   EXPECT_TRUE(j["summary"].contains("svgf.surface 24x16 gather floor/copy"));
   // The roofline moves 124 bytes per pixel (bench.cpp, kSvgfRooflineRead + kSvgfRooflineWritten).
