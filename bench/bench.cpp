@@ -433,9 +433,8 @@ json summarize(const json& j, const std::vector<std::string>& svgf_sizes) {
         if (std::string(kernel) == "subsampled")
           add(fmt::format("svgf.surface {} gather floor/copy", sz),
               e[kernel]["gather_floor"]["ratio_to_copy"],
-              "the loads of one subsampled filter iteration without its math (7 taps of 16 B per pixel from "
-              "a "
-              "storage buffer, summed) / the same copy");
+              "the loads of one subsampled filter iteration without its math (7 taps of 16 B per pixel "
+              "from a storage buffer, summed) / the same copy");
       }
   if (j.contains("view") && !j["view"].contains("skipped")) {
     const auto& r = j["view"]["wall_over_gpu"];
