@@ -286,11 +286,13 @@ void Media::update(const scene::Scene& s) {
   grids_.update(ctx_, host_, hetero_);
   gpu::keep_uploaded(ctx_, table_, hetero_, "media", "scene data", host_.media, "GpuMedium");
   const auto& maj = host_.majorant;
-  gpu::keep_uploaded(ctx_, majorant_, hetero_, "majorant grid", "scene data", maj.sigma_max,
-                     fmt::format("f32 {}x{}x{}", maj.res.x, maj.res.y, maj.res.z));
-  // Only the default estimator's trackers read the controls (volpath is pbrt's plain tracking), two pairs per
-  // cell (shaders/volume/medium.glsl): (majorant, minorant) for decomposition tracking, (mean, residual
-  // majorant) for residual ratio tracking; each tracker loads one pair per cell.
+  // One grid of bounds per scene: volpath (pbrt's plain tracking) reads the majorants alone, the default
+  // estimator's trackers the pairs below, whose first holds the same majorants.
+  const bool controls_wanted = hetero_ && s.render.estimator != "volpath";
+  gpu::keep_uploaded(ctx_, majorant_, hetero_ && !controls_wanted, "majorant grid", "scene data",
+                     maj.sigma_max, fmt::format("f32 {}x{}x{}", maj.res.x, maj.res.y, maj.res.z));
+  // Two pairs per cell (shaders/volume/medium.glsl): (majorant, minorant) for decomposition tracking, (mean,
+  // residual majorant) for residual ratio tracking; each tracker loads one pair per cell.
   std::vector<glm::vec2> controls(2 * maj.sigma_min.size());
   for (size_t i = 0; i < maj.sigma_min.size(); ++i) {
     const float hi = maj.sigma_max[i], lo = maj.sigma_min[i], c = maj.sigma_mean[i];
@@ -299,8 +301,7 @@ void Media::update(const scene::Scene& s) {
     const float r = std::max(hi - c, c - lo);
     controls[2 * i + 1] = {c, r > 0 ? std::nextafter(r, std::numeric_limits<float>::infinity()) : 0.f};
   }
-  gpu::keep_uploaded(ctx_, minorant_, hetero_ && s.render.estimator != "volpath", "minorant grid",
-                     "scene data", controls,
+  gpu::keep_uploaded(ctx_, minorant_, controls_wanted, "minorant grid", "scene data", controls,
                      fmt::format("f32 pairs (majorant, minorant), (mean, residual) {}x{}x{}", maj.res.x,
                                  maj.res.y, maj.res.z));
 }
@@ -328,13 +329,16 @@ void Media::declare(gpu::KernelDecl& k) const {
   if (emission_) k.define("HAZE_EMISSION");
   k.buffer("grids", grids_.table().size(), 8);
   k.buffer("media", table_.size(), sizeof(glsl::GpuMedium));
-  k.buffer("majorant", majorant_.size(), 4);
+  if (minorant_.valid()) {
+    k.define("HAZE_MINORANT");
+    k.buffer("minorant", minorant_.size(), 8);
+  } else {
+    k.buffer("majorant", majorant_.size(), 4);
+  }
 }
 
 void Media::declare_default_tracking(gpu::KernelDecl& k) const {
   if (!minorant_.valid()) return;
-  k.define("HAZE_MINORANT");
-  k.buffer("minorant", minorant_.size(), 8);
   // Delta tracking skips the lookup of collisions under the control when a collision needs no more than
   // constants: one grid medium, grey, without emission.
   if (host_.media.size() == 1 && !emission_ && !chromatic_) k.define("HAZE_DECOMPOSITION");
@@ -352,7 +356,7 @@ void Media::bind(gpu::Bindings& b) const {
   if (!hetero_) return;
   b.set("grids", grids_.table());
   b.set("media", table_);
-  b.set("majorant", majorant_);
+  if (majorant_.valid()) b.set("majorant", majorant_);
   if (minorant_.valid()) b.set("minorant", minorant_);
 }
 

@@ -71,16 +71,17 @@ class DeviceGrids {
   gpu::Buffer table_;
 };
 
-// The media on the device. Features: HAZE_HETERO (VDB media: the grid table, media table, majorant grid),
-// HAZE_HAZE (homogeneous haze, in the scene block only), HAZE_EMISSION (an emitting VDB medium),
-// HAZE_CHROMATIC (some medium's sigma_t_color is not [1, 1, 1]: per-channel extinction), and for the default
-// estimator's tracking kernel (declare_default_tracking) HAZE_MINORANT (the minorant grid), with one grey VDB
-// medium without emission HAZE_DECOMPOSITION (delta tracking's collisions under the control need no lookup),
-// and where no grid value is negative HAZE_STOCHASTIC_LOOKUP (one voxel a lookup, chosen by the trilinear
-// weights; HAZE_ONE_GRID keeps the one grid's accessor over a sample).
-// Every NanoVDB grid is a buffer of its own, read through its device address (DeviceGrids), so the grids
-// together may exceed maxStorageBufferRange. How the media moved since the previous frame (transforms and
-// velocity grids) is the volume motion pass's input (guiding/volume_motion.hpp), kept only while wanted.
+// The media on the device. Features: HAZE_HETERO (VDB media: the grid table, media table, and the majorant
+// grid, which the default estimator's scenes hold as HAZE_MINORANT's grid of pairs instead), HAZE_HAZE
+// (homogeneous haze, in the scene block only), HAZE_EMISSION (an emitting VDB medium), HAZE_CHROMATIC (some
+// medium's sigma_t_color is not [1, 1, 1]: per-channel extinction), and for the default estimator's tracking
+// kernel (declare_default_tracking) with one grey VDB medium without emission HAZE_DECOMPOSITION (delta
+// tracking's collisions under the control need no lookup), and where no grid value is negative
+// HAZE_STOCHASTIC_LOOKUP (one voxel a lookup, chosen by the trilinear weights; HAZE_ONE_GRID keeps the one
+// grid's accessor over a sample). Every NanoVDB grid is a buffer of its own, read through its device address
+// (DeviceGrids), so the grids together may exceed maxStorageBufferRange. How the media moved since the
+// previous frame (transforms and velocity grids) is the volume motion pass's input
+// (guiding/volume_motion.hpp), kept only while wanted.
 class Media : public gpu::DeviceData {
  public:
   explicit Media(gpu::Context& ctx) : ctx_(ctx) {}
@@ -107,9 +108,9 @@ class Media : public gpu::DeviceData {
   std::vector<std::string> notes() const;  // the media's and the velocity grids'
 
   void declare(gpu::KernelDecl& k) const override;
-  // HAZE_MINORANT and the minorant grid, for the kernel whose tracking takes it as its control (and
-  // HAZE_DECOMPOSITION where a collision needs only constants, HAZE_STOCHASTIC_LOOKUP where no grid value is
-  // negative); nothing unless the scene's estimator is the default one and it has VDB media.
+  // For the kernel whose tracking takes the minorant grid's controls: HAZE_DECOMPOSITION where a collision
+  // needs only constants, HAZE_STOCHASTIC_LOOKUP where no grid value is negative; nothing unless the scene's
+  // estimator is the default one and it has VDB media.
   void declare_default_tracking(gpu::KernelDecl& k) const;
   void bind(gpu::Bindings& b) const override;
   // counts.x, the haze, the majorant grid's bounds and resolution, the tracking step cap.

@@ -1,8 +1,8 @@
 // The medium seen by the tracker: sigma_t at a point (with the stochastic choice of the scattering
 // component), the piecewise-constant majorant along a ray, and ratio/delta tracking on top of them.
 // Reads the scene block and, with HAZE_HETERO, the bindings "grids" (every grid's device address, read by
-// PNanoVDB: volume/grids.glsl), "media" and "majorant" (volume/media.hpp); with HAZE_MINORANT (the default
-// estimator's tracking kernel) "minorant" too.
+// PNanoVDB: volume/grids.glsl), "media", and "majorant" or, with HAZE_MINORANT (scenes of the default
+// estimator), "minorant", whose pairs hold the majorants too (volume/media.hpp).
 #ifndef HAZE_MEDIUM_GLSL
 #define HAZE_MEDIUM_GLSL
 
@@ -11,9 +11,11 @@
 layout(std430, binding = BINDING_media) readonly buffer MediaBuffer {
   GpuMedium media[];
 };
+#if !HAZE_MINORANT
 layout(std430, binding = BINDING_majorant) readonly buffer MajorantBuffer {
   float majorant[];
 };
+#endif
 #endif
 #if HAZE_MINORANT
 // Two pairs per majorant cell (volume/media.cpp): (majorant, minorant) for delta tracking's decomposition,
